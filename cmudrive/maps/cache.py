@@ -1,0 +1,98 @@
+"""Load a map by town name or path, converting it once and caching the arrays.
+
+The cache key is the SHA-256 of the network file plus a hash of the code that builds the arrays
+(``model.py``, ``loader.py``, ``index.py``), so an edited network or a changed map model never reads
+stale arrays. Cache files are ``.npz`` (no pickles) written to a temporary
+name and renamed into place, so an interrupted conversion leaves nothing half-written. The cache folder is
+``$CMUDRIVE_CACHE/maps`` (default ``~/.cache/cmudrive/maps``); if it cannot be written the map is still
+returned, just not cached.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import os
+import tempfile
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from cmudrive.maps.errors import MapError
+from cmudrive.maps.loader import file_sha256, read_sumo_net
+from cmudrive.maps.model import RoadMap
+
+_BUILDER_MODULES = ("model.py", "loader.py", "index.py")  # the code whose output is cached
+NET_SUFFIX = ".net.xml"
+
+
+def assets_dir() -> Path:
+    """Folder of the committed town networks (package data)."""
+    return Path(__file__).resolve().parent.parent / "assets" / "maps"
+
+
+def available_towns() -> list[str]:
+    """Names of the committed towns, sorted."""
+    return sorted(p.name[: -len(NET_SUFFIX)] for p in assets_dir().glob(f"*{NET_SUFFIX}"))
+
+
+def cache_dir() -> Path:
+    root = os.environ.get("CMUDRIVE_CACHE") or os.path.join(os.path.expanduser("~"), ".cache", "cmudrive")
+    return Path(root) / "maps"
+
+
+def resolve_map_path(town_or_path: str | Path) -> Path:
+    """A committed town name (``"grid"``) or a path to a ``.net.xml`` file."""
+    candidate = Path(town_or_path)
+    if candidate.suffix in (".xml", ".gz") or candidate.exists() or os.sep in str(town_or_path):
+        if not candidate.is_file():
+            raise MapError(f"map file not found: {candidate}")
+        return candidate
+    path = assets_dir() / f"{town_or_path}{NET_SUFFIX}"
+    if not path.is_file():
+        towns = ", ".join(available_towns()) or "(none built)"
+        raise MapError(f"unknown town {str(town_or_path)!r}; available towns: {towns}")
+    return path
+
+
+def load_map(town_or_path: str | Path, use_cache: bool = True) -> RoadMap:
+    """Load a town or network file as a :class:`RoadMap`, from the cache when possible."""
+    path = resolve_map_path(town_or_path)
+    name = path.name[: -len(NET_SUFFIX)] if path.name.endswith(NET_SUFFIX) else path.stem
+    if not use_cache:
+        return read_sumo_net(path, name=name)
+    key = f"{file_sha256(path)[:32]}-{_builder_version()}"
+    cached = cache_dir() / f"{name}-{key}.npz"
+    if cached.is_file():
+        try:
+            with np.load(cached, allow_pickle=False) as data:
+                return RoadMap.from_arrays({k: data[k] for k in data.files})
+        except Exception as exc:  # a corrupt cache entry is rebuilt, never trusted
+            warnings.warn(f"ignoring unreadable map cache {cached}: {exc}", stacklevel=2)
+    road_map = read_sumo_net(path, name=name)
+    _save(road_map, cached)
+    return road_map
+
+
+@functools.cache
+def _builder_version() -> str:
+    digest = hashlib.sha256()
+    for module in _BUILDER_MODULES:
+        digest.update((Path(__file__).parent / module).read_bytes())
+    return digest.hexdigest()[:12]
+
+
+def _save(road_map: RoadMap, target: Path) -> None:
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.stem}.", suffix=".npz", dir=target.parent)
+        try:
+            with os.fdopen(fd, "wb") as fh:
+                np.savez(fh, **road_map.arrays())  # type: ignore[arg-type]
+            os.replace(tmp, target)
+        finally:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+    except OSError as exc:
+        warnings.warn(f"map cache not written ({target}): {exc}", stacklevel=3)

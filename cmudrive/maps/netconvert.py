@@ -1,0 +1,67 @@
+"""Run SUMO's ``netconvert`` (from the ``eclipse-sumo`` wheel, extra ``cmudrive[maps]``).
+
+netconvert is only needed to *build* networks (procedural towns, OpenDRIVE / OpenStreetMap import);
+running the benchmark reads the committed ``.net.xml`` files with sumolib and never needs it.
+Outputs are written to a temporary file next to the target and moved into place only on success, so a
+failed conversion never leaves a half-written network behind.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import tempfile
+from collections.abc import Sequence
+from pathlib import Path
+
+from cmudrive.maps.errors import NetconvertError
+
+INSTALL_HINT = "install it with: pip install 'cmudrive[maps]' (the eclipse-sumo wheel ships netconvert)"
+
+
+def find_netconvert() -> Path:
+    """Locate the netconvert binary: ``$SUMO_HOME/bin``, the ``eclipse-sumo`` wheel, then ``PATH``."""
+    candidates: list[Path] = []
+    if os.environ.get("SUMO_HOME"):
+        candidates.append(Path(os.environ["SUMO_HOME"]) / "bin" / "netconvert")
+    try:
+        import sumo  # the eclipse-sumo wheel
+
+        candidates.append(Path(sumo.SUMO_HOME) / "bin" / "netconvert")
+    except ImportError:
+        pass
+    on_path = shutil.which("netconvert")
+    if on_path:
+        candidates.append(Path(on_path))
+    for path in candidates:
+        if path.is_file() and os.access(path, os.X_OK):
+            return path
+    raise NetconvertError(f"netconvert not found; {INSTALL_HINT}")
+
+
+def run_netconvert(args: Sequence[str], output: Path, *, source: str, timeout_s: float = 600.0) -> Path:
+    """Run ``netconvert ARGS -o <tmp>`` and atomically move the result to ``output``.
+
+    ``source`` names the input (file or town) in error messages. Returns ``output``.
+    """
+    binary = find_netconvert()
+    output = Path(output)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{output.name}.", suffix=".tmp.net.xml", dir=output.parent)
+    os.close(fd)
+    tmp = Path(tmp_name)
+    cmd = [str(binary), *args, "--output-file", str(tmp)]
+    try:
+        try:
+            proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s, check=False)
+        except subprocess.TimeoutExpired as exc:
+            raise NetconvertError(f"netconvert timed out after {timeout_s:.0f} s on {source}") from exc
+        if proc.returncode != 0 or not tmp.exists() or tmp.stat().st_size == 0:
+            tail = "\n".join((proc.stderr or proc.stdout).strip().splitlines()[-15:])
+            raise NetconvertError(f"netconvert failed on {source} (exit {proc.returncode}):\n{tail}")
+        os.replace(tmp, output)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return output

@@ -1,0 +1,256 @@
+"""Draw a :class:`RoadMap` (and optionally a route) as a top-down road plan with matplotlib.
+
+Lanes are filled polygons (centreline offset by half the width), coloured by kind; markings follow
+road practice: solid white road edges, dashed white lines between same-direction lanes, a solid yellow
+centre line between opposite directions, white stop lines, zebra crossings; traffic lights are drawn as
+signal heads at their stop lines (in the colour of the program's first phase), stop signs as red
+octagons beside the line.
+
+The geometry (lane polygons and colours, crossing stripes, marking polylines, signal colours) comes from
+small public helpers that the fast BEV renderer (:mod:`cmudrive.viz.bev`) shares.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, NamedTuple
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.collections import LineCollection, PolyCollection
+from matplotlib.lines import Line2D
+from matplotlib.patches import Patch
+
+from cmudrive.maps.model import LaneKind, RoadMap, StopKind
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+
+    from cmudrive.maps.routing import Route
+
+LANE_COLOURS = {
+    LaneKind.DRIVING: "#5a5a5a",
+    LaneKind.SIDEWALK: "#c9c2b5",
+    LaneKind.BIKE: "#5f8f6a",
+    LaneKind.PARKING: "#6f6f80",
+    LaneKind.SHOULDER: "#807a70",
+    LaneKind.WALKINGAREA: "#c9c2b5",
+}
+JUNCTION_COLOUR = "#5a5a5a"
+BACKGROUND = "#d9e6cf"
+SIGNAL_COLOURS = {
+    "r": "#e0271f",
+    "y": "#f2c40c",
+    "g": "#35b23a",
+    "G": "#35b23a",
+    "s": "#e0271f",
+    "u": "#f2a20c",
+}
+SIGNAL_UNKNOWN = "#999999"  # off ('o', 'O') or an unknown state character
+ZEBRA_PERIOD = 1.0  # [m] stripe + gap along a crossing
+
+
+def signal_colour(char: str) -> str:
+    """Colour of a SUMO signal state character (r y g G s u; anything else, e.g. off 'o'/'O', is grey)."""
+    return SIGNAL_COLOURS.get(char, SIGNAL_UNKNOWN)
+
+
+def _offset(xy: np.ndarray, offset: float) -> np.ndarray:
+    """Offset a polyline (n, 2) sideways by ``offset`` (+ left) using per-vertex mitre-free normals."""
+    seg = np.diff(xy, axis=0)
+    seg /= np.maximum(np.linalg.norm(seg, axis=1, keepdims=True), 1e-12)
+    normals = np.stack([-seg[:, 1], seg[:, 0]], axis=1)
+    vertex = np.vstack([normals[:1], normals[:-1] + normals[1:], normals[-1:]])
+    vertex /= np.maximum(np.linalg.norm(vertex, axis=1, keepdims=True), 1e-12)
+    return xy + offset * vertex
+
+
+def _lane_polygon(m: RoadMap, lane: int) -> np.ndarray:
+    xy = m.polyline(lane)
+    half = 0.5 * float(m.lane_width[lane])
+    return np.vstack([_offset(xy, half), _offset(xy, -half)[::-1]])
+
+
+def _zebra(m: RoadMap, lane: int) -> list[np.ndarray]:
+    xy, s = m.polyline(lane), m.polyline_s(lane)
+    half = 0.5 * float(m.lane_width[lane])
+    stripes = []
+    for s0 in np.arange(0.25, s[-1] - 0.5, ZEBRA_PERIOD):
+        a = np.array([np.interp(s0, s, xy[:, 0]), np.interp(s0, s, xy[:, 1])])
+        b = np.array([np.interp(s0 + 0.5, s, xy[:, 0]), np.interp(s0 + 0.5, s, xy[:, 1])])
+        direction = (b - a) / max(np.linalg.norm(b - a), 1e-9)
+        n = np.array([-direction[1], direction[0]]) * half
+        stripes.append(np.array([a - n, b - n, b + n, a + n]))
+    return stripes
+
+
+def junction_polygons(m: RoadMap) -> list[np.ndarray]:
+    """Outline polygons (n, 2) [m] of the junctions that have one."""
+    return [m.junction_shape(j) for j in range(len(m.junction_ids)) if len(m.junction_shape(j)) >= 3]
+
+
+def lane_polygons(m: RoadMap) -> tuple[list[np.ndarray], list[str], list[np.ndarray]]:
+    """Lane surfaces in drawing order (pavements first, roads on top): polygons (n, 2) [m], their colours,
+    and the zebra stripes (4, 2) [m] of the crossings (crossings have no surface polygon of their own)."""
+    polys: list[np.ndarray] = []
+    colours: list[str] = []
+    zebra: list[np.ndarray] = []
+    order = np.argsort(m.lane_kind == LaneKind.DRIVING, kind="stable")
+    for lane in order.tolist():
+        kind = LaneKind(int(m.lane_kind[lane]))
+        if kind == LaneKind.CROSSING:
+            zebra.extend(_zebra(m, lane))
+            continue
+        poly = m.polyline(lane) if kind == LaneKind.WALKINGAREA else _lane_polygon(m, lane)
+        if len(poly) >= 3:
+            polys.append(poly)
+            colours.append(LANE_COLOURS[kind])
+    return polys, colours, zebra
+
+
+class Markings(NamedTuple):
+    """Road markings as polylines (n, 2) [m]."""
+
+    solid: list[np.ndarray]  # white road edges
+    dashed: list[np.ndarray]  # white lines between same-direction lanes
+    centre: list[np.ndarray]  # yellow line between opposite directions
+    stop: list[np.ndarray]  # (2, 2) stop lines, right end first
+
+
+def marking_lines(m: RoadMap) -> Markings:
+    """The markings of the normal driving lanes (see the module docstring for the convention)."""
+    solid: list[np.ndarray] = []
+    dashed: list[np.ndarray] = []
+    centre: list[np.ndarray] = []
+    normal_driving = np.flatnonzero((m.lane_kind == LaneKind.DRIVING) & ~m.lane_internal)
+    for lane in normal_driving.tolist():
+        xy = m.polyline(lane)
+        half = 0.5 * float(m.lane_width[lane])
+        left, right = m.lane_left[lane], m.lane_right[lane]
+        if m.lane_opposite[lane] >= 0:
+            centre.append(_offset(xy, half))
+        elif left >= 0 and m.lane_kind[left] == LaneKind.DRIVING:
+            dashed.append(_offset(xy, half))
+        else:
+            solid.append(_offset(xy, half))
+        if right < 0 or m.lane_kind[right] != LaneKind.DRIVING:
+            solid.append(_offset(xy, -half))
+    return Markings(solid, dashed, centre, list(m.stop_xy))
+
+
+def draw_map(m: RoadMap, ax: Axes, markings: bool = True, signals: bool = True) -> None:
+    """Draw the road plan of ``m`` onto ``ax`` (equal aspect, metres)."""
+    ax.set_facecolor(BACKGROUND)
+    junction_polys = junction_polygons(m)
+    ax.add_collection(PolyCollection(junction_polys, facecolors=JUNCTION_COLOUR, edgecolors="none", zorder=1))
+    polys, colours, zebra = lane_polygons(m)
+    ax.add_collection(PolyCollection(polys, facecolors=colours, edgecolors=colours, linewidths=0.2, zorder=2))
+    if markings:
+        _draw_markings(m, ax)
+        ax.add_collection(PolyCollection(zebra, facecolors="white", edgecolors="none", zorder=4))
+    if signals:
+        _draw_controls(m, ax)
+    xmin, ymin, xmax, ymax = m.bounds
+    pad = 10.0
+    ax.set_xlim(xmin - pad, xmax + pad)
+    ax.set_ylim(ymin - pad, ymax + pad)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+
+
+def _draw_markings(m: RoadMap, ax: Axes) -> None:
+    solid, dashed, centre, stop = marking_lines(m)
+    ax.add_collection(LineCollection(solid, colors="white", linewidths=0.6, zorder=3))
+    ax.add_collection(
+        LineCollection(dashed, colors="white", linewidths=0.5, linestyles=(0, (4, 6)), zorder=3)
+    )
+    ax.add_collection(LineCollection(centre, colors="#f2c40c", linewidths=0.7, zorder=3))
+    ax.add_collection(LineCollection(stop, colors="white", linewidths=1.4, zorder=4))
+
+
+def _draw_controls(m: RoadMap, ax: Axes) -> None:
+    lights = m.stop_kind == StopKind.TRAFFIC_LIGHT
+    if np.any(lights):
+        centres = m.stop_xy[lights].mean(axis=1)
+        colours = []
+        for k in np.flatnonzero(lights).tolist():
+            tls, lane = int(m.stop_tls[k]), int(m.stop_lane[k])
+            _, states = m.tls_phases(tls)
+            links = np.flatnonzero((m.link_from == lane) & (m.link_tls == tls))
+            char = str(states[0])[int(m.link_tls_index[links[0]])] if len(states) and len(links) else "r"
+            colours.append(signal_colour(char))
+        ax.scatter(
+            centres[:, 0], centres[:, 1], s=14, c=colours, edgecolors="black", linewidths=0.4, zorder=6
+        )
+    signs = m.stop_kind != StopKind.TRAFFIC_LIGHT
+    if np.any(signs):
+        right_end = m.stop_xy[signs, 0]
+        ax.scatter(
+            right_end[:, 0],
+            right_end[:, 1],
+            s=22,
+            marker="8",
+            c="#c4161c",
+            edgecolors="white",
+            linewidths=0.5,
+            zorder=6,
+        )
+
+
+def draw_route(ax: Axes, route: Route, colour: str = "#1f77e4", label: str | None = "route") -> None:
+    ax.plot(route.xy[:, 0], route.xy[:, 1], color=colour, linewidth=2.0, alpha=0.85, zorder=7, label=label)
+    (x0, y0), (x1, y1) = route.xy[0], route.xy[-1]
+    ax.scatter(x0, y0, s=50, marker="o", color=colour, edgecolors="black", zorder=8)
+    ax.scatter(x1, y1, s=80, marker="*", color=colour, edgecolors="black", zorder=8)
+
+
+def legend_handles() -> list[Patch | Line2D]:
+    return [
+        Patch(color=LANE_COLOURS[LaneKind.DRIVING], label="driving lane / junction"),
+        Patch(color=LANE_COLOURS[LaneKind.SIDEWALK], label="sidewalk"),
+        Patch(color=LANE_COLOURS[LaneKind.PARKING], label="parking lane"),
+        Patch(color=LANE_COLOURS[LaneKind.BIKE], label="bike lane"),
+        Line2D([], [], color="#f2c40c", label="centre line (two-way)"),
+        Line2D(
+            [],
+            [],
+            marker="o",
+            linestyle="",
+            markerfacecolor=SIGNAL_COLOURS["G"],
+            markeredgecolor="black",
+            label="traffic light (phase 0)",
+        ),
+        Line2D(
+            [],
+            [],
+            marker="8",
+            linestyle="",
+            markerfacecolor="#c4161c",
+            markeredgecolor="white",
+            label="stop sign / all-way stop",
+        ),
+    ]
+
+
+def save_map_figure(
+    m: RoadMap, out: str | Path, route: Route | None = None, title: str | None = None, dpi: int = 200
+) -> Path:
+    """Render ``m`` (and ``route``) to a PNG; the figure scales with the map so lanes stay legible."""
+    xmin, ymin, xmax, ymax = m.bounds
+    width, height = max(xmax - xmin, 1.0), max(ymax - ymin, 1.0)
+    scale = min(24.0 / width, 24.0 / height, 0.05)  # inches per metre
+    fig, ax = plt.subplots(figsize=(max(width * scale, 6.0), max(height * scale, 6.0)))
+    draw_map(m, ax)
+    if route is not None:
+        draw_route(ax, route)
+    ax.set_title(title or f"{m.name}")
+    ax.legend(handles=legend_handles(), loc="upper right", fontsize=7, framealpha=0.9)
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=dpi, bbox_inches="tight")
+    plt.close(fig)
+    return out
