@@ -1,0 +1,161 @@
+"""World-tick budget: our full tick vs bare libsumo stepping the same network with the same traffic.
+
+    python benchmarks/engine.py [--town downtown] [--ticks 2000] [--quick]
+
+1. Our world: 16 CAVs on the lane-following autopilot, background activity holding ~100 vehicles and
+   ~50 pedestrians around them. Timed: ``World.tick`` only (CAV dynamics, push into SUMO, SUMO step,
+   background activity, snapshot, collisions); the autopilot's controls are computed outside the timer.
+2. Bare SUMO: a fresh libsumo simulation of the same network, seed and options, holding the same
+   vehicles (the CAVs as ordinary SUMO cars on their routes) and pedestrians as the world had when timing
+   began, stepped with ``simulationStep`` only.
+
+The last line is ``ratio_vs_sumo=<our ticks per second / bare SUMO steps per second>`` (goal >= 0.5).
+Peak memory is the process's maximum resident set size. The per-phase line splits our tick: "cavs"
+(validate, integrate, push), "sumo_step" (SUMO's step inside our loop), "background", "snapshot",
+"collisions". Note that SUMO's own step is ~1 ms slower inside any Python loop that does real work
+between steps than in a bare stepping loop (CPU caches), which this ratio charges to us.
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import time
+
+import numpy as np
+
+from cmudrive.agents.autopilot import LaneFollowingAutopilot
+from cmudrive.maps import load_map, resolve_map_path
+from cmudrive.sim.background import BackgroundActivity, BackgroundConfig
+from cmudrive.sim.demo import demo_routes
+from cmudrive.sim.snapshot import Role
+from cmudrive.sim.sumo import start_sumo
+from cmudrive.sim.world import World, WorldConfig
+
+WARMUP_TICKS = 40
+
+
+def traffic_of_world() -> tuple[list[tuple[str, str, tuple[str, ...], str, float]], list[tuple]]:
+    """Every SUMO vehicle (id, type, remaining route, lane, pos) and person (id, edges, pos) now; the
+    bare run inserts vehicles at the maximum safe speed there."""
+    import libsumo
+
+    vehicles = []
+    for vid in libsumo.vehicle.getIDList():
+        route = libsumo.vehicle.getRoute(vid)[libsumo.vehicle.getRouteIndex(vid) :]
+        lane = libsumo.vehicle.getLaneID(vid)
+        if lane.startswith(":"):
+            continue  # inside a junction: cannot be inserted there; a handful at most
+        vehicles.append(
+            (
+                vid,
+                libsumo.vehicle.getTypeID(vid),
+                tuple(route),
+                lane,
+                libsumo.vehicle.getLanePosition(vid),
+            )
+        )
+    persons = []
+    for pid in libsumo.person.getIDList():
+        edge = libsumo.person.getRoadID(pid)
+        if edge.startswith(":"):
+            continue
+        stage = libsumo.person.getStage(pid)
+        edges = [e for e in stage.edges if not e.startswith(":")]
+        start = edges.index(edge) if edge in edges else 0
+        persons.append((pid, tuple(edges[start:]), libsumo.person.getLanePosition(pid), stage.arrivalPos))
+    return vehicles, persons
+
+
+def run_world(town: str, ticks: int, cavs: int, seed: int) -> tuple[float, int, int, tuple]:
+    road_map = load_map(town)
+    routes = demo_routes(road_map, cavs, np.random.default_rng(seed))
+    config = BackgroundConfig(vehicles=100, pedestrians=50, radius=250.0, pedestrian_radius=150.0)
+    with World(WorldConfig(town=town, seed=seed), road_map=road_map) as world:
+        for route in routes:
+            world.add_cav(route)
+        world.background = BackgroundActivity(config)
+        world.background.populate(world)
+        pilot = LaneFollowingAutopilot(road_map, routes)
+        snap = world.snapshot()
+        elapsed = 0.0
+        for k in range(WARMUP_TICKS + ticks):
+            if k == WARMUP_TICKS:
+                world.timing = dict.fromkeys(world.timing, 0.0)
+            rows = np.flatnonzero(snap.role == Role.CAV)
+            index = np.array([int(str(i)[3:]) for i in snap.ids[rows]], np.int64)
+            controls = pilot.controls(snap, rows, index)
+            if k == WARMUP_TICKS:
+                traffic = traffic_of_world()
+                actors_at_start = len(snap.ids)
+            t0 = time.perf_counter()
+            snap = world.tick(controls)
+            if k >= WARMUP_TICKS:
+                elapsed += time.perf_counter() - t0
+        phases = ", ".join(f"{k} {v / ticks * 1e3:.2f}" for k, v in world.timing.items() if k != "ticks")
+        print(f"ours per phase [ms/tick]: {phases}")
+        return elapsed, actors_at_start, len(snap.ids), traffic
+
+
+def run_bare(town: str, ticks: int, seed: int, traffic: tuple) -> tuple[float, int, int]:
+    import libsumo
+
+    vehicles, persons = traffic
+    session = start_sumo(resolve_map_path(town), seed)
+    try:
+        for vid, vtype, route, lane, pos in vehicles:
+            libsumo.route.add(f"r:{vid}", list(route))
+            libsumo.vehicle.add(
+                vid,
+                f"r:{vid}",
+                typeID=vtype,
+                depart="now",
+                departLane=lane.rsplit("_", 1)[1],
+                departPos=str(pos),
+                departSpeed="max",
+            )
+        for pid, edges, pos, arrival in persons:
+            libsumo.person.add(pid, edges[0], pos, depart=-3, typeID="pedestrian")
+            libsumo.person.appendWalkingStage(pid, list(edges), arrival)
+        libsumo.simulationStep()
+        at_start = libsumo.vehicle.getIDCount() + libsumo.person.getIDCount()
+        t0 = time.perf_counter()
+        for _ in range(ticks):
+            libsumo.simulationStep()
+        elapsed = time.perf_counter() - t0
+        at_end = libsumo.vehicle.getIDCount() + libsumo.person.getIDCount()
+    finally:
+        session.close()
+    return elapsed, at_start, at_end
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--town", default="downtown")
+    parser.add_argument("--ticks", type=int, default=2000)
+    parser.add_argument("--cavs", type=int, default=16)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--quick", action="store_true", help="400 ticks (well under a minute)")
+    args = parser.parse_args()
+    ticks = 400 if args.quick else args.ticks
+    ours, ours_start, ours_end, traffic = run_world(args.town, ticks, args.cavs, args.seed)
+    bare, bare_start, bare_end = run_bare(args.town, ticks, args.seed, traffic)
+    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    ours_rate, bare_rate = ticks / ours, ticks / bare
+    print(f"town {args.town}, {ticks} ticks of 0.05 s, {args.cavs} CAVs")
+    print(
+        f"ours: {ours_start} -> {ours_end} actors, {ours / ticks * 1e3:.2f} ms/tick, {ours_rate:.0f} ticks/s "
+        f"({ours_rate * 0.05:.1f}x real time)"
+    )
+    print(
+        f"bare SUMO: {bare_start} -> {bare_end} actors, {bare / ticks * 1e3:.2f} ms/step, "
+        f"{bare_rate:.0f} steps/s"
+    )
+    print(f"peak memory {peak_mb:.0f} MB")
+    print(f"ratio_vs_sumo={ours_rate / bare_rate:.3f}")
+
+
+if __name__ == "__main__":
+    main()

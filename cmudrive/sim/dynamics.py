@@ -1,0 +1,128 @@
+"""CAV dynamics: a kinematic bicycle model driven by CARLA-style controls, vectorised over CAVs.
+
+Why our own model rather than SUMO's: SUMO moves vehicles along lanes (longitudinal car-following plus
+lane changes); it has no steering. An agent under test outputs CARLA controls, so CAVs need a model that
+turns steer/throttle/brake into a free 2D motion that can leave its lane, cut corners or hit the kerb.
+The kinematic bicycle model (reference point at the centre of the bounding box, slip angle from the
+rear-axle geometry) is the standard choice at urban speeds, and cheap enough to vectorise.
+
+Controls follow CARLA's ``VehicleControl`` convention: ``steer`` in [-1, 1] with **+1 = full right**,
+``throttle`` and ``brake`` in [0, 1]. There is no reverse gear: speed never drops below 0.
+
+Policy for bad controls (``validate_controls``): any NaN or infinite value raises :class:`ControlError`
+naming the CAV and the control (the evaluator records the route as "Agent crashed"); finite values
+outside their range are clipped and reported per CAV in ``ControlCheck.clipped`` so that runs can log
+them. Nothing non-finite ever reaches the state.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+GRAVITY = 9.81  # [m/s^2]
+
+
+class ControlError(ValueError):
+    """Controls that cannot be applied (NaN or infinite); the message names the CAV."""
+
+
+@dataclass(frozen=True)
+class VehicleParams:
+    """Limits of the CAV model (defaults: a mid-size sedan like CARLA's Lincoln MKZ 2020)."""
+
+    wheelbase: float = 2.875  # [m]
+    rear_to_cg: float = 1.44  # [m] rear axle to the bounding-box centre (about half the wheelbase)
+    max_steer: float = np.radians(35.0)  # [rad] front wheel angle at |steer| = 1
+    steer_rate: float = np.radians(120.0)  # [rad/s] how fast the front wheels can turn
+    max_accel: float = 4.0  # [m/s^2] full throttle from standstill (0-100 km/h in ~9 s)
+    max_speed: float = 45.0  # [m/s] top speed; full-throttle acceleration fades to 0 there
+    max_brake: float = 8.0  # [m/s^2] full brake on a dry road (scaled by the weather's friction)
+    rolling: float = 0.15  # [m/s^2] rolling resistance
+    drag: float = 4.0e-4  # [1/m] aerodynamic drag coefficient: decel = drag * v^2
+    max_lateral_accel: float = 0.9 * GRAVITY  # [m/s^2] on a dry road; steering is limited so v^2 / R <= this
+
+
+@dataclass(frozen=True)
+class CavState:
+    """State of ``n`` CAVs; every field has shape (n,)."""
+
+    x: np.ndarray  # [m] bounding-box centre
+    y: np.ndarray  # [m]
+    yaw: np.ndarray  # [rad] counter-clockwise from +x
+    speed: np.ndarray  # [m/s] >= 0
+    steer_angle: np.ndarray  # [rad] current front wheel angle, + = left
+    accel: np.ndarray  # [m/s^2] longitudinal acceleration in the last step
+
+
+@dataclass(frozen=True)
+class Controls:
+    """CARLA-style controls for ``n`` CAVs, arrays of shape (n,)."""
+
+    steer: np.ndarray  # [-1, 1], + = right
+    throttle: np.ndarray  # [0, 1]
+    brake: np.ndarray  # [0, 1]
+
+    @staticmethod
+    def zeros(n: int) -> Controls:
+        return Controls(np.zeros(n), np.zeros(n), np.zeros(n))
+
+
+@dataclass(frozen=True)
+class ControlCheck:
+    controls: Controls  # finite and in range
+    clipped: np.ndarray  # (n,) bool, some value of that CAV was out of range and clipped
+
+
+def validate_controls(controls: Controls, cav_ids: list[str] | np.ndarray) -> ControlCheck:
+    """Reject non-finite controls (naming the CAV) and clip out-of-range ones (reported)."""
+    arrays = {
+        "steer": np.asarray(controls.steer, np.float64),
+        "throttle": np.asarray(controls.throttle, np.float64),
+        "brake": np.asarray(controls.brake, np.float64),
+    }
+    n = len(cav_ids)
+    for name, value in arrays.items():
+        if value.shape != (n,):
+            raise ControlError(f"{name} has shape {value.shape}, expected ({n},): one value per active CAV")
+        bad = np.flatnonzero(~np.isfinite(value))
+        if len(bad):
+            i = int(bad[0])
+            raise ControlError(f"CAV {cav_ids[i]}: {name} is {value[i]} (controls must be finite)")
+    steer = np.clip(arrays["steer"], -1.0, 1.0)
+    throttle = np.clip(arrays["throttle"], 0.0, 1.0)
+    brake = np.clip(arrays["brake"], 0.0, 1.0)
+    clipped = (steer != arrays["steer"]) | (throttle != arrays["throttle"]) | (brake != arrays["brake"])
+    return ControlCheck(Controls(steer, throttle, brake), clipped)
+
+
+def step_bicycle(
+    state: CavState, controls: Controls, params: VehicleParams, dt: float, friction: float = 1.0
+) -> CavState:
+    """Advance all CAVs by ``dt`` seconds. ``controls`` must already be validated."""
+    p = params
+    v = state.speed
+    # longitudinal: throttle force fades with speed; brake scaled by road friction; resistances oppose motion
+    drive = controls.throttle * p.max_accel * np.clip(1.0 - (v / p.max_speed) ** 2, 0.0, 1.0)
+    resist = np.where(v > 0.0, p.rolling + p.drag * v**2, 0.0)
+    brake = controls.brake * p.max_brake * friction
+    accel = drive - resist - brake
+    v_new = np.maximum(v + accel * dt, 0.0)  # brakes and drag stop the car; they never reverse it
+    accel = (v_new - v) / dt
+    # lateral: target wheel angle (CARLA: + steer = right = clockwise, i.e. negative in our frame),
+    # limited by the actuator rate and by the grip available at this speed
+    target = -controls.steer * p.max_steer
+    grip = p.max_lateral_accel * friction
+    v_mid = 0.5 * (v + v_new)
+    grip_limit = np.arctan(p.wheelbase * grip / np.maximum(v_mid, 1e-3) ** 2)
+    target = np.clip(target, -grip_limit, grip_limit)
+    max_change = p.steer_rate * dt
+    delta = state.steer_angle + np.clip(target - state.steer_angle, -max_change, max_change)
+    beta = np.arctan(p.rear_to_cg / p.wheelbase * np.tan(delta))  # slip angle at the reference point
+    yaw_rate = v_mid / p.rear_to_cg * np.sin(beta)
+    yaw_mid = state.yaw + 0.5 * yaw_rate * dt
+    x = state.x + v_mid * np.cos(yaw_mid + beta) * dt
+    y = state.y + v_mid * np.sin(yaw_mid + beta) * dt
+    yaw = (state.yaw + yaw_rate * dt + np.pi) % (2.0 * np.pi) - np.pi
+    return CavState(x=x, y=y, yaw=yaw, speed=v_new, steer_angle=delta, accel=accel)

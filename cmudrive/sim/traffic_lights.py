@@ -1,0 +1,101 @@
+"""Traffic lights: read every light's signal string each tick, expand it to per-link states, and force
+states for scenarios (and release them back to the network's program).
+
+SUMO runs each light's program from the network; a forced state (``force``) holds until ``release``,
+which restores the program SUMO was running and its phase, so the normal cycle resumes.
+Signal characters are SUMO's: ``r`` red, ``y`` yellow, ``g`` green (minor: yield), ``G`` green
+(priority), ``s`` green right-turn arrow after stopping, ``u`` red+yellow, ``o``/``O`` off.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cmudrive.maps.model import RoadMap
+
+NO_SIGNAL = "O"  # state reported for links without a traffic light
+RED_STATES = frozenset("ru")  # a vehicle must not pass
+GREEN_STATES = frozenset("gGs")
+
+
+class TrafficLights:
+    """The lights of one map inside a running SUMO simulation."""
+
+    def __init__(self, road_map: RoadMap) -> None:
+        self.map = road_map
+        self.ids = [str(t) for t in road_map.tls_ids]
+        self._forced: dict[str, tuple[str, int]] = {}  # tls -> (program, phase) to restore
+
+    def read(self) -> np.ndarray:
+        """(T,) current signal string of each light, in map order."""
+        import libsumo
+
+        get = libsumo.trafficlight.getRedYellowGreenState
+        return np.array([get(t) for t in self.ids], dtype=str)
+
+    def link_states(self, tls_state: np.ndarray) -> np.ndarray:
+        """(L,) one signal character per map link ('O' where the link has no light)."""
+        return link_states(self.map, tls_state)
+
+    def force(self, tls_id: str, state: str) -> None:
+        """Hold ``tls_id`` at ``state`` (one character per signal index) until :meth:`release`."""
+        import libsumo
+
+        current = libsumo.trafficlight.getRedYellowGreenState(tls_id)
+        if len(state) != len(current):
+            raise ValueError(
+                f"traffic light {tls_id}: state {state!r} has {len(state)} signals, expected {len(current)}"
+            )
+        if tls_id not in self._forced:
+            self._forced[tls_id] = (
+                libsumo.trafficlight.getProgram(tls_id),
+                libsumo.trafficlight.getPhase(tls_id),
+            )
+        libsumo.trafficlight.setRedYellowGreenState(tls_id, state)
+
+    def force_lanes(self, lanes: list[int] | np.ndarray, char: str, others: str | None = None) -> list[str]:
+        """Set every signal of links leaving ``lanes`` (map lane indices) to ``char``; with ``others``, set
+        all other signals of the same lights to that. Returns the lights touched."""
+        import libsumo
+
+        m = self.map
+        links = np.flatnonzero(np.isin(m.link_from, np.asarray(lanes)) & (m.link_tls >= 0))
+        touched = sorted({int(t) for t in m.link_tls[links]})
+        for t in touched:
+            tls_id = self.ids[t]
+            state = list(libsumo.trafficlight.getRedYellowGreenState(tls_id))
+            if others is not None:
+                state = [others] * len(state)
+            for k in links[m.link_tls[links] == t]:
+                state[int(m.link_tls_index[k])] = char
+            self.force(tls_id, "".join(state))
+        return [self.ids[t] for t in touched]
+
+    def release(self, tls_id: str | None = None) -> None:
+        """Give ``tls_id`` (default: every forced light) back to its program, at the phase it was in."""
+        import libsumo
+
+        for tls in [tls_id] if tls_id else list(self._forced):
+            program, phase = self._forced.pop(tls, (None, 0))
+            if program is not None:
+                libsumo.trafficlight.setProgram(tls, program)
+                libsumo.trafficlight.setPhase(tls, phase)
+
+    @property
+    def forced(self) -> list[str]:
+        return list(self._forced)
+
+
+def link_states(road_map: RoadMap, tls_state: np.ndarray) -> np.ndarray:
+    """(L,) signal character per link from the (T,) light strings of a snapshot."""
+    m = road_map
+    out = np.full(len(m.link_from), NO_SIGNAL, dtype="<U1")
+    if len(tls_state) == 0:
+        return out
+    width = max(len(s) for s in tls_state)
+    if width == 0:
+        return out
+    chars = np.array([list(str(s).ljust(width, NO_SIGNAL)) for s in tls_state], dtype="<U1")
+    signalled = (m.link_tls >= 0) & (m.link_tls_index >= 0)
+    out[signalled] = chars[m.link_tls[signalled], np.minimum(m.link_tls_index[signalled], width - 1)]
+    return out

@@ -1,0 +1,411 @@
+"""The embedded world: SUMO traffic plus our CAVs, scenario actors and props, one tick at a time.
+
+One tick (``World.tick(controls)``, dt = 0.05 s):
+
+1. validate the CAV controls (NaN/inf -> :class:`ControlError` naming the CAV; out of range -> clipped);
+2. integrate the CAVs with the kinematic bicycle model (friction from the weather);
+3. push CAVs and kinematic scenario actors into SUMO (``moveToXY(keepRoute=2)`` + ``setSpeed``) so that
+   SUMO traffic follows, yields to and overtakes them;
+4. step SUMO (background traffic, pedestrians, lights);
+5. background activity keeps traffic dense around the CAVs (every ``update_period`` ticks);
+6. read the snapshot (CAVs first, then our layer's actors, then SUMO's) and check oriented-box
+   collisions between all actors (pairs of two pedestrians excepted: SUMO's pedestrian model lets
+   walkers brush past each other in crowds, which is not a driving event).
+
+After a collision (documented policy): CAVs keep their kinematic state (there is no impulse model; the
+criteria score the contact), and a SUMO vehicle or pedestrian that touched a CAV, a scenario actor or a
+prop stops where it is, hazard lights on, for ``COLLISION_HOLD`` seconds, then drives on; this keeps
+SUMO traffic from driving through what it hit.
+
+The world owns one libsumo simulation; use it as a context manager (or call ``close``), one at a time.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from time import perf_counter
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from cmudrive.maps import RoadMap, Route, load_map, resolve_map_path
+from cmudrive.sim.actor_types import ACTOR_TYPES, actor_type
+from cmudrive.sim.collisions import CollisionEvents, detect_collisions
+from cmudrive.sim.dynamics import CavState, Controls, VehicleParams, step_bicycle, validate_controls
+from cmudrive.sim.snapshot import SIGNAL_BLINKER_EMERGENCY, SIGNAL_BRAKELIGHT, ActorKind, Role, Snapshot
+from cmudrive.sim.sumo import SUMO_STEP, SumoSession, remove_from_sumo, start_sumo
+from cmudrive.sim.traffic_lights import TrafficLights
+from cmudrive.sim.weather import Weather, get_weather
+
+if TYPE_CHECKING:
+    from cmudrive.sim.background import BackgroundActivity
+
+TICK_PHASES = ("cavs", "sumo_step", "background", "snapshot", "collisions")  # World.timing keys [s]
+COLLISION_HOLD = 5.0  # [s] a SUMO actor that hit something waits this long before driving on
+BRAKE_LIGHT_THRESHOLD = 0.05  # brake input above which a CAV shows brake lights
+
+
+@dataclass(frozen=True)
+class WorldConfig:
+    """What a world is built from. ``town`` is a committed town name or a .net.xml path."""
+
+    town: str | Path
+    seed: int = 0
+    weather: str = "ClearNoon"
+    cav_params: VehicleParams = field(default_factory=VehicleParams)
+    log_file: Path | None = None  # SUMO's warnings go here when set
+
+
+@dataclass
+class LayerActors:
+    """Actors our layer moves (scenario kinematic actors and props), arrays over ``n`` actors."""
+
+    ids: list[str] = field(default_factory=list)
+    type_names: list[str] = field(default_factory=list)
+    role: list[int] = field(default_factory=list)
+    in_sumo: list[bool] = field(default_factory=list)
+    x: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    y: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    yaw: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    speed: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+
+class World:
+    """SUMO world + CAVs. Add CAVs (``add_cav``) before the first ``tick``."""
+
+    def __init__(self, config: WorldConfig, road_map: RoadMap | None = None) -> None:
+        self.config = config
+        self.map = road_map if road_map is not None else load_map(config.town)
+        self.weather: Weather = get_weather(config.weather)
+        self.dt = SUMO_STEP
+        self.rng = np.random.default_rng(config.seed)
+        self.sumo: SumoSession = start_sumo(
+            resolve_map_path(config.town), config.seed, self.weather.friction, config.log_file
+        )
+        try:
+            self.lights = TrafficLights(self.map)
+        except Exception:
+            self.sumo.close()
+            raise
+        self.step_count = 0
+        self.cav_ids: list[str] = []
+        self.cav_active = np.zeros(0, bool)
+        self.cav_state = CavState(*(np.zeros(0) for _ in range(6)))
+        self.cav_clipped = np.zeros(0, np.int64)  # per CAV: ticks with clipped controls
+        self._cav_brake = np.zeros(0)
+        self._cav_off_road = np.zeros(0, bool)  # no driving lane within MATCH_RADIUS at the last push
+        self._cav_in_sumo: set[str] = set()
+        self._cav_edges: dict[str, list[str]] = {}
+        self.layer = LayerActors()
+        self.collisions: CollisionEvents = detect_collisions(self._empty_snapshot())
+        self._held: dict[str, float] = {}  # SUMO actor -> time its collision hold ends
+        self.background: BackgroundActivity | None = None  # keeps traffic around the CAVs when set
+        self.last_snapshot: Snapshot | None = None
+        # wall-clock seconds spent per tick phase, summed over ticks (and the tick count): for profiling
+        self.timing: dict[str, float] = dict.fromkeys((*TICK_PHASES, "ticks"), 0.0)
+
+    # ------------------------------------------------------------------ lifecycle
+    def __enter__(self) -> World:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self.sumo.close()
+
+    @property
+    def time(self) -> float:
+        return self.step_count * self.dt
+
+    # ------------------------------------------------------------------ CAVs
+    def add_cav(self, route: Route, speed: float = 0.0) -> str:
+        """Place a new CAV at the start of ``route`` (its pose and heading), at ``speed`` [m/s]."""
+        cav_id = f"cav{len(self.cav_ids)}"
+        edges = self._route_edges(route)
+        x0, y0 = route.xy[0]
+        st = self.cav_state
+        self.cav_state = CavState(
+            x=np.append(st.x, x0),
+            y=np.append(st.y, y0),
+            yaw=np.append(st.yaw, route.heading[0]),
+            speed=np.append(st.speed, speed),
+            steer_angle=np.append(st.steer_angle, 0.0),
+            accel=np.append(st.accel, 0.0),
+        )
+        self.cav_ids.append(cav_id)
+        self.cav_active = np.append(self.cav_active, True)
+        self.cav_clipped = np.append(self.cav_clipped, 0)
+        self._cav_brake = np.append(self._cav_brake, 0.0)
+        self._cav_off_road = np.append(self._cav_off_road, False)
+        self._cav_edges[cav_id] = edges
+        self._insert_cav(len(self.cav_ids) - 1)
+        return cav_id
+
+    def remove_cav(self, index: int) -> None:
+        """The CAV leaves the world (finished or failed); its last state is kept, inactive."""
+        if not self.cav_active[index]:
+            return
+        self.cav_active[index] = False
+        cav_id = self.cav_ids[index]
+        if cav_id in self._cav_in_sumo:
+            remove_from_sumo(cav_id)
+            self._cav_in_sumo.discard(cav_id)
+
+    def _route_edges(self, route: Route) -> list[str]:
+        names = self.map.edge_ids[self.map.lane_edge[route.lane]]
+        edges: list[str] = []
+        for name in names.tolist():
+            if not name.startswith(":") and (not edges or edges[-1] != name):
+                edges.append(name)
+        return edges
+
+    def _insert_cav(self, i: int) -> None:
+        """(Re-)insert CAV ``i`` into SUMO at its current pose."""
+        import libsumo
+
+        cav_id = self.cav_ids[i]
+        edges = self._cav_edges[cav_id]
+        st = self.cav_state
+        proj = self.map.index.nearest_lane(np.array([[st.x[i], st.y[i]]]), heading=st.yaw[i])
+        lane = int(proj.lane[0])
+        if lane >= 0 and not self.map.lane_internal[lane]:
+            here = str(self.map.edge_ids[self.map.lane_edge[lane]])
+            if here in edges:
+                edges = edges[edges.index(here) :]
+            else:
+                edges = [here]
+        route_id = f"route:{cav_id}:{self.step_count}"
+        libsumo.route.add(route_id, edges)
+        libsumo.vehicle.add(cav_id, route_id, typeID="cav", depart="now", departSpeed="0")
+        libsumo.vehicle.setSpeedMode(cav_id, 0)
+        libsumo.vehicle.setLaneChangeMode(cav_id, 0)
+        self._cav_in_sumo.add(cav_id)
+        self._push_cavs(np.array([i]))
+
+    def _push_cavs(self, rows: np.ndarray) -> None:
+        st = self.cav_state
+        length = np.full(len(rows), ACTOR_TYPES["cav"].length)
+        self._cav_off_road[rows] = self.sumo.move_vehicles(
+            [self.cav_ids[i] for i in rows], st.x[rows], st.y[rows], st.yaw[rows], st.speed[rows], length
+        )
+
+    # ------------------------------------------------------------------ scenario actors and props
+    def add_layer_actor(
+        self,
+        actor_id: str,
+        type_name: str,
+        x: float,
+        y: float,
+        yaw: float,
+        speed: float = 0.0,
+        role: Role = Role.SCENARIO,
+    ) -> None:
+        """An actor our layer moves (``set_layer_pose``); pushed into SUMO when it stands on a driving lane,
+        so that traffic stops behind or drives around it (props: stopped vehicles SUMO overtakes)."""
+        t = actor_type(type_name)
+        on_road = bool(self.map.index.on_driving_lane(np.array([[x, y]]))[0])
+        in_sumo = on_road and t.kind not in (ActorKind.PEDESTRIAN,)
+        L = self.layer
+        L.ids.append(actor_id)
+        L.type_names.append(type_name)
+        L.role.append(int(role))
+        L.in_sumo.append(in_sumo)
+        L.x, L.y = np.append(L.x, x), np.append(L.y, y)
+        L.yaw, L.speed = np.append(L.yaw, yaw), np.append(L.speed, speed)
+        if in_sumo:
+            import libsumo
+
+            proj = self.map.index.nearest_lane(np.array([[x, y]]), heading=yaw)
+            edge = str(self.map.edge_ids[self.map.lane_edge[max(int(proj.lane[0]), 0)]])
+            libsumo.route.add(f"route:{actor_id}", [edge])
+            libsumo.vehicle.add(
+                actor_id, f"route:{actor_id}", typeID=type_name, depart="now", departSpeed="0"
+            )
+            libsumo.vehicle.setSpeedMode(actor_id, 0)
+            libsumo.vehicle.setLaneChangeMode(actor_id, 0)
+            self.sumo.move_vehicles(
+                [actor_id],
+                np.array([x]),
+                np.array([y]),
+                np.array([yaw]),
+                np.array([speed]),
+                np.array([t.length]),
+            )
+
+    def set_layer_pose(self, actor_id: str, x: float, y: float, yaw: float, speed: float) -> None:
+        i = self.layer.ids.index(actor_id)
+        self.layer.x[i], self.layer.y[i], self.layer.yaw[i], self.layer.speed[i] = x, y, yaw, speed
+
+    def remove_layer_actor(self, actor_id: str) -> None:
+        L = self.layer
+        i = L.ids.index(actor_id)
+        if L.in_sumo[i]:
+            remove_from_sumo(actor_id)
+        keep = np.arange(len(L.ids)) != i
+        for name in ("ids", "type_names", "role", "in_sumo"):
+            values = getattr(L, name)
+            setattr(L, name, [v for v, k in zip(values, keep, strict=True) if k])
+        L.x, L.y, L.yaw, L.speed = L.x[keep], L.y[keep], L.yaw[keep], L.speed[keep]
+
+    # ------------------------------------------------------------------ the tick
+    def tick(self, controls: Controls) -> Snapshot:
+        """Advance the world by one step with controls for the *active* CAVs, in CAV order."""
+        clock = self.timing
+        t0 = perf_counter()
+        active = np.flatnonzero(self.cav_active)
+        check = validate_controls(controls, [self.cav_ids[i] for i in active])
+        self.cav_clipped[active] += check.clipped
+        self._advance_cavs(active, check.controls)
+        self._push_layer()
+        t1 = perf_counter()
+        self.sumo.step()
+        self._reinsert_arrived_cavs(active)
+        self.step_count += 1
+        t2 = perf_counter()
+        if self.background is not None:
+            self.background.update(self)
+        self._release_holds()
+        t3 = perf_counter()
+        snap = self.snapshot()
+        t4 = perf_counter()
+        events = detect_collisions(snap)
+        # pedestrians brushing past each other in a crowd are not a driving event
+        self.collisions = events.select(
+            (events.kind_a != ActorKind.PEDESTRIAN) | (events.kind_b != ActorKind.PEDESTRIAN)
+        )
+        self._hold_sumo_actors_after_collisions(snap)
+        self.last_snapshot = snap
+        t5 = perf_counter()
+        for phase, dt in zip(TICK_PHASES, (t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4), strict=True):
+            clock[phase] += dt
+        clock["ticks"] += 1
+        return snap
+
+    def _advance_cavs(self, active: np.ndarray, controls: Controls) -> None:
+        if len(active) == 0:
+            return
+        st = self.cav_state
+        params, friction = self.config.cav_params, self.weather.friction
+        if len(active) == len(self.cav_ids):  # the common case: no copies of the state
+            self.cav_state = step_bicycle(st, controls, params, self.dt, friction)
+        else:
+            sub = CavState(*(getattr(st, f)[active] for f in CavState.__dataclass_fields__))
+            new = step_bicycle(sub, controls, params, self.dt, friction)
+            for f in CavState.__dataclass_fields__:
+                getattr(st, f)[active] = getattr(new, f)
+        self._cav_brake[active] = controls.brake
+        self._push_cavs(active)
+
+    def _push_layer(self) -> None:
+        L = self.layer
+        rows = [i for i, flag in enumerate(L.in_sumo) if flag]
+        if rows:
+            length = np.array([ACTOR_TYPES[L.type_names[i]].length for i in rows])
+            self.sumo.move_vehicles(
+                [L.ids[i] for i in rows], L.x[rows], L.y[rows], L.yaw[rows], L.speed[rows], length
+            )
+
+    def _reinsert_arrived_cavs(self, active: np.ndarray) -> None:
+        """SUMO removes a vehicle at the end of its route; a CAV lives on until the evaluator ends it."""
+        import libsumo
+
+        arrived = set(libsumo.simulation.getArrivedIDList())
+        for i in active.tolist():
+            if self.cav_ids[i] in arrived:
+                self._cav_in_sumo.discard(self.cav_ids[i])
+                self._insert_cav(i)
+
+    # ------------------------------------------------------------------ snapshot
+    def snapshot(self) -> Snapshot:
+        """Every actor now: active CAVs, then our layer's actors, then SUMO's, in insertion order."""
+        m = self.map
+        st = self.cav_state
+        cav = np.flatnonzero(self.cav_active)
+        cav_ids = [self.cav_ids[i] for i in cav]
+        cav_type = ACTOR_TYPES["cav"]
+        L = self.layer
+        layer_types = [ACTOR_TYPES[n] for n in L.type_names]
+        layer_lane = (
+            m.index.nearest_lane(np.stack([L.x, L.y], axis=1), max_distance=2.0).lane
+            if L.ids
+            else np.zeros(0, np.int32)
+        )
+        sumo = self.sumo.read(extra=cav_ids)
+        lookup = m._lane_lookup
+        # a CAV's lane is where SUMO mapped it (heading-aware, within MATCH_RADIUS); off the road: -1
+        cav_lane = [
+            -1 if off else lookup.get(lid, -1)
+            for lid, off in zip(sumo.extra_lane_ids, self._cav_off_road[cav], strict=True)
+        ]
+        n_c, n_l, n_s = len(cav), len(L.ids), len(sumo.ids)
+        signals = np.concatenate(
+            [
+                np.where(self._cav_brake[cav] > BRAKE_LIGHT_THRESHOLD, SIGNAL_BRAKELIGHT, 0),
+                np.zeros(n_l, np.int32),
+                sumo.signals,
+            ]
+        ).astype(np.int32)
+        if self._held:  # SUMO actors waiting after a collision show hazard lights
+            held = np.isin(np.array(sumo.ids, dtype=str), list(self._held))
+            signals[n_c + n_l :][held] |= SIGNAL_BLINKER_EMERGENCY
+        return Snapshot(
+            step=self.step_count,
+            time=self.time,
+            ids=np.array(cav_ids + L.ids + sumo.ids, dtype=str),
+            kind=np.concatenate(
+                [np.full(n_c, cav_type.kind), [t.kind for t in layer_types], sumo.kind]
+            ).astype(np.int8),
+            role=np.concatenate([np.full(n_c, Role.CAV), L.role, sumo.role]).astype(np.int8),
+            x=np.concatenate([st.x[cav], L.x, sumo.x]),
+            y=np.concatenate([st.y[cav], L.y, sumo.y]),
+            yaw=np.concatenate([st.yaw[cav], L.yaw, sumo.yaw]),
+            speed=np.concatenate([st.speed[cav], L.speed, sumo.speed]),
+            accel=np.concatenate([st.accel[cav], np.zeros(n_l), sumo.accel]),
+            length=np.concatenate(
+                [np.full(n_c, cav_type.length), [t.length for t in layer_types], sumo.length]
+            ),
+            width=np.concatenate([np.full(n_c, cav_type.width), [t.width for t in layer_types], sumo.width]),
+            lane=np.concatenate(
+                [cav_lane, layer_lane, [lookup.get(lid, -1) for lid in sumo.lane_ids]]
+            ).astype(np.int32),
+            signals=signals,
+            valid=np.ones(n_c + n_l + n_s, bool),
+            tls_state=self.lights.read(),
+        )
+
+    def _empty_snapshot(self) -> Snapshot:
+        return Snapshot.from_rows(0, 0.0, np.zeros(0, dtype=str), x=np.zeros(0), y=np.zeros(0))
+
+    # ------------------------------------------------------------------ collision aftermath
+    def _hold_sumo_actors_after_collisions(self, snap: Snapshot) -> None:
+        import libsumo
+
+        ev = self.collisions
+        for a, b in zip(ev.a.tolist(), ev.b.tolist(), strict=True):
+            for me, other in ((a, b), (b, a)):
+                actor = str(snap.ids[me])
+                info = self.sumo.actors.get(actor)
+                if info is None or snap.role[other] == Role.BACKGROUND or actor in self._held:
+                    continue
+                self._held[actor] = self.time + COLLISION_HOLD
+                if info.is_person:
+                    libsumo.person.setSpeed(actor, 0.0)
+                else:
+                    libsumo.vehicle.setSpeed(actor, 0.0)
+
+    def _release_holds(self) -> None:
+        import libsumo
+
+        for actor, until in list(self._held.items()):
+            if self.time < until:
+                continue
+            del self._held[actor]
+            info = self.sumo.actors.get(actor)
+            if info is None:
+                continue
+            if info.is_person:
+                libsumo.person.setSpeed(actor, ACTOR_TYPES["pedestrian"].max_speed * 0.7)
+            else:
+                libsumo.vehicle.setSpeed(actor, -1.0)  # back to SUMO's own car-following

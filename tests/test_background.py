@@ -1,0 +1,309 @@
+"""Background activity: density around standing CAVs, out-of-sight spawns, removal, the BA commands and
+determinism, on a committed town (the ``mini`` fixture network when no town is committed)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import libsumo
+import numpy as np
+import pytest
+
+from cmudrive.maps import LaneKind, LanePos, RoadMap, RoutePlanner, available_towns, load_map
+from cmudrive.sim.actor_types import ACTOR_TYPES
+from cmudrive.sim.background import BackgroundActivity, BackgroundConfig
+from cmudrive.sim.dynamics import Controls
+from cmudrive.sim.snapshot import ActorKind, Role, Snapshot
+from cmudrive.sim.world import World, WorldConfig
+
+TOWN = "downtown"
+CAV0_S = 20.0  # [m] CAV 0 stands this far along its lane, with the rest of the (straight) lane ahead
+MAX_BG_SPEED = 16.0  # [m/s] no background vehicle in the town drives faster (speed limits + factor)
+
+
+@pytest.fixture(scope="module")
+def town(mini_net: Path) -> tuple[str | Path, RoadMap]:
+    net: str | Path = TOWN if TOWN in available_towns() else mini_net
+    return net, load_map(net)
+
+
+def _straight(m: RoadMap, lane: int) -> bool:
+    xy = m.polyline(lane)
+    heading = np.arctan2(*np.diff(xy, axis=0)[:, ::-1].T)
+    return bool(np.ptp(np.unwrap(heading)) < 0.01)
+
+
+def cav_lanes(m: RoadMap) -> tuple[int, int]:
+    """Two long straight driving lanes near the map centre whose CAV spots are 60-150 m apart."""
+    cand = np.flatnonzero(m.driving & ~m.lane_internal & (m.lane_length > 110.0))
+    cand = np.array([c for c in cand.tolist() if _straight(m, c)])
+    spot = m.index.frenet_to_xy(cand, np.full(len(cand), CAV0_S))
+    off_centre = np.linalg.norm(spot - 0.5 * (m.bounds[:2] + m.bounds[2:]), axis=1)
+    apart = np.linalg.norm(spot[:, None] - spot[None], axis=-1)
+    score = np.where((apart > 60.0) & (apart < 150.0), off_centre[:, None] + off_centre[None], np.inf)
+    i, j = np.unravel_index(np.argmin(score), score.shape)
+    assert np.isfinite(score[i, j]), "no pair of CAV lanes found"
+    return int(cand[i]), int(cand[j])
+
+
+@contextmanager
+def standing_world(
+    town: tuple[str | Path, RoadMap], config: BackgroundConfig, seed: int = 7, populate: bool = True
+) -> Iterator[tuple[World, BackgroundActivity]]:
+    """A world with 2 standing CAVs and background activity (populated unless told otherwise)."""
+    net, m = town
+    planner = RoutePlanner(m)
+    with World(WorldConfig(net, seed=seed), road_map=m) as world:
+        for lane in cav_lanes(m):
+            world.add_cav(planner.plan_lanes(LanePos(lane, CAV0_S), LanePos(lane, CAV0_S + 10.0)))
+        bg = BackgroundActivity(config)
+        world.background = bg
+        if populate:
+            bg.populate(world)
+        yield world, bg
+
+
+def run(world: World, ticks: int) -> Snapshot:
+    brake = Controls(np.zeros(2), np.zeros(2), np.ones(2))
+    snap = world.last_snapshot
+    for _ in range(ticks):
+        snap = world.tick(brake)
+    assert snap is not None
+    return snap
+
+
+def cav_xy(world: World) -> np.ndarray:
+    return np.stack([world.cav_state.x, world.cav_state.y], axis=1)
+
+
+def background_vehicles(snap: Snapshot) -> np.ndarray:
+    return (snap.role == Role.BACKGROUND) & (snap.kind != ActorKind.PEDESTRIAN)
+
+
+def nearest_cav_distance(world: World, xy: np.ndarray) -> np.ndarray:
+    return np.min(np.linalg.norm(np.asarray(xy)[:, None, :] - cav_xy(world)[None], axis=-1), axis=1)
+
+
+def add_background_car(world: World, vid: str, lane: int, s: float | str, speed: float | str = 0.0) -> None:
+    m = world.map
+    edge = str(m.edge_ids[m.lane_edge[lane]])
+    world.sumo.add_vehicle(
+        vid,
+        "car",
+        [edge],
+        int(Role.BACKGROUND),
+        depart_pos=s,
+        depart_lane=int(m.lane_index[lane]),
+        depart_speed=speed,
+    )
+
+
+# ---------------------------------------------------------------------------------------------------
+
+
+def test_density_near_target_and_later_spawns_out_of_sight(town: tuple[str | Path, RoadMap]) -> None:
+    cfg = BackgroundConfig(vehicles=40, pedestrians=20)
+    with standing_world(town, cfg) as (world, bg):
+        m = world.map
+        initial = list(bg.spawns)
+        assert sum(r.type_name != "pedestrian" for r in initial) >= 0.9 * cfg.vehicles
+        snap = run(world, 200)
+        veh = background_vehicles(snap)
+        near = nearest_cav_distance(world, snap.xy[veh])
+        assert 0.75 * cfg.vehicles <= np.count_nonzero(near <= cfg.radius) <= 1.25 * cfg.vehicles
+        ped = (snap.role == Role.BACKGROUND) & (snap.kind == ActorKind.PEDESTRIAN)
+        near_ped = nearest_cav_distance(world, snap.xy[ped])
+        n_ped = np.count_nonzero(near_ped <= cfg.pedestrian_radius)
+        assert 0.75 * cfg.pedestrians <= n_ped <= 1.25 * cfg.pedestrians
+
+        xy = np.array([[r.x, r.y] for r in bg.spawns])
+        dist = nearest_cav_distance(world, xy)  # the CAVs never moved
+        is_initial = np.array([r.initial for r in bg.spawns])
+        assert len(bg.spawns) > len(initial), "no spawn after the initial fill"
+        assert np.all(dist[~is_initial] >= cfg.spawn_min_distance)
+        assert np.all(dist[is_initial] >= cfg.fill_clearance)
+        assert np.all(dist[is_initial] <= cfg.radius)
+        # lane permissions: pedestrians on sidewalks, each vehicle type only where SUMO allows its class
+        for r in bg.spawns:
+            if r.type_name == "pedestrian":
+                assert m.lane_kind[r.lane] == LaneKind.SIDEWALK
+            else:
+                allowed = libsumo.lane.getAllowed(str(m.lane_ids[r.lane]))
+                assert not allowed or ACTOR_TYPES[r.type_name].vclass in allowed
+        # the initial fill is spread out: no two spawns within 10 m on one lane
+        lanes = np.array([r.lane for r in initial])
+        pts = np.array([[r.x, r.y] for r in initial])
+        gap = np.linalg.norm(pts[:, None] - pts[None], axis=-1) + np.eye(len(pts)) * 1e9
+        assert not np.any((lanes[:, None] == lanes[None]) & (gap < 10.0 - 1e-6))
+        assert bg.stats["spawned"] == len(bg.spawns)
+
+
+def test_vehicles_driving_away_are_removed(town: tuple[str | Path, RoadMap]) -> None:
+    cfg = BackgroundConfig(
+        vehicles=15, pedestrians=0, radius=60.0, removal_margin=10.0, spawn_min_distance=40.0
+    )
+    with standing_world(town, cfg) as (world, bg):
+        for _ in range(20):
+            snap = run(world, cfg.update_period)  # an update just ran (snapshot one tick of motion later)
+            veh = background_vehicles(snap)
+            far = nearest_cav_distance(world, snap.xy[veh])
+            assert np.all(far <= cfg.radius + cfg.removal_margin + MAX_BG_SPEED * world.dt + 3.0)
+        assert bg.stats["removed_far"] > 0
+
+
+def test_leave_space_clears_the_lane_corridor_ahead(town: tuple[str | Path, RoadMap]) -> None:
+    with standing_world(town, BackgroundConfig(), populate=False) as (world, bg):
+        m = world.map
+        lane = cav_lanes(m)[0]
+        for i, ahead in enumerate((10.0, 22.0, 36.0, 75.0)):  # front bumpers, metres ahead of the CAV centre
+            add_background_car(world, f"ahead{i}", lane, CAV0_S + ahead)
+        run(world, 3)
+        bg.populate(world)  # the cars above are in the snapshot now: the fill leaves room for them
+        snap = run(world, 3)
+        assert {"ahead0", "ahead1", "ahead2", "ahead3"} <= set(snap.ids.tolist())
+        removed = bg.leave_space(0, 40.0)
+        assert removed >= 3
+        snap = run(world, 1)
+        veh = background_vehicles(snap)
+        yaw = world.cav_state.yaw[0]
+        rel = snap.xy[veh] - cav_xy(world)[0]
+        lon = rel[:, 0] * np.cos(yaw) + rel[:, 1] * np.sin(yaw)
+        lat = -rel[:, 0] * np.sin(yaw) + rel[:, 1] * np.cos(yaw)
+        in_corridor = (lon > 0.0) & (lon <= 40.0) & (np.abs(lat) < 0.5 * m.lane_width[lane])
+        assert not in_corridor.any(), snap.ids[veh][in_corridor]
+        assert "ahead3" in world.sumo.actors  # beyond the 40 m: kept
+
+
+def test_remove_lane_clears_it_and_stops_spawns_there(town: tuple[str | Path, RoadMap]) -> None:
+    with standing_world(town, BackgroundConfig()) as (world, bg):
+        run(world, 200)
+        later = [r.lane for r in bg.spawns if not r.initial]
+        lane = int(np.bincount(later).argmax())  # the lane most used by out-of-sight spawns so far
+        add_background_car(world, "victim", lane, "random_free", speed="max")  # the lane is never empty
+        snap = run(world, 2)
+        on_lane = [a for a in snap.ids[background_vehicles(snap) & (snap.lane == lane)].tolist()]
+        assert on_lane
+        n_before = len(bg.spawns)
+        assert bg.remove_lane([lane]) >= len(on_lane)
+        assert not set(on_lane) & set(world.sumo.actors)
+        run(world, 200)
+        after = bg.spawns[n_before:]
+        assert after, "no spawns at all after remove_lane"
+        assert all(r.lane != lane for r in after)
+        bg.readd_lane([lane])
+
+
+def test_max_speed_caps_background_vehicles(town: tuple[str | Path, RoadMap]) -> None:
+    with standing_world(town, BackgroundConfig()) as (world, bg):
+        run(world, 20)
+        bg.max_speed(5.0)
+        snap = run(world, 100)
+        veh = background_vehicles(snap)
+        assert veh.sum() > 20
+        assert snap.speed[veh].max() <= 5.5
+        bg.max_speed(None)
+        vid = next(a for a in bg.background_ids() if a.startswith("bgv"))
+        type_name = next(r.type_name for r in bg.spawns if r.actor_id == vid)
+        assert libsumo.vehicle.getMaxSpeed(vid) == pytest.approx(ACTOR_TYPES[type_name].max_speed)
+
+
+def test_stop_lane_halts_and_release_lane_lets_go(town: tuple[str | Path, RoadMap]) -> None:
+    with standing_world(town, BackgroundConfig(vehicles=0, pedestrians=0)) as (world, bg):
+        m = world.map
+        lane = cav_lanes(m)[1]
+        s0 = CAV0_S + 15.0  # ahead of CAV 1, which blocks nothing in front of it
+        for i in range(3):
+            add_background_car(world, f"halt{i}", lane, s0 + 20.0 * i, speed=8.0)
+        snap = run(world, 6)
+        ids = [f"halt{i}" for i in range(3)]
+        assert all(snap.speed[snap.index_of(a)] > 5.0 for a in ids)
+        assert bg.stop_lane([lane]) >= 3
+        snap = run(world, 80)
+        assert all(snap.speed[snap.index_of(a)] < 0.1 for a in ids)
+        assert bg.release_lane([lane]) >= 3
+        snap = run(world, 40)
+        assert snap.speed[snap.index_of("halt2")] > 1.0  # the front car drives on
+
+
+def test_clear_junction_and_opposite_traffic_off(town: tuple[str | Path, RoadMap]) -> None:
+    cfg = BackgroundConfig(vehicles=60)
+    with standing_world(town, cfg) as (world, bg):
+        m = world.map
+        snap = run(world, 100)
+        veh = background_vehicles(snap) & (snap.lane >= 0)
+        junction = m.lane_junction[snap.lane[veh]]
+        busiest = int(np.bincount(junction[junction >= 0]).argmax())
+        assert bg.clear_junction(busiest, approach=30.0) > 0
+        snap = run(world, 1)
+        veh = background_vehicles(snap) & (snap.lane >= 0)
+        assert not np.any(m.lane_junction[snap.lane[veh]] == busiest)
+
+        def oncoming(snap: Snapshot, min_distance: float, slack: float = 0.0) -> list[str]:
+            """Background vehicles ahead of their nearest CAV, heading against it, within the radius.
+            With ``slack`` [m, deg] vehicles near a boundary of the rule are left out: the update works on
+            the previous tick's snapshot, so a vehicle may cross a boundary in between."""
+            veh = background_vehicles(snap)
+            d = np.sort(np.linalg.norm(snap.xy[veh][:, None] - cav_xy(world)[None], axis=-1), axis=1)
+            k = np.linalg.norm(snap.xy[veh][:, None] - cav_xy(world)[None], axis=-1).argmin(axis=1)
+            yaw = world.cav_state.yaw[k]
+            rel = snap.xy[veh] - cav_xy(world)[k]
+            ahead = rel[:, 0] * np.cos(yaw) + rel[:, 1] * np.sin(yaw) > slack
+            against = np.abs((snap.yaw[veh] - yaw + np.pi) % (2 * np.pi) - np.pi) > np.radians(120.0 + slack)
+            near = (d[:, 0] <= cfg.radius - slack) & (d[:, 0] >= min_distance + slack)
+            near &= d[:, 1] - d[:, 0] > slack  # the nearest CAV is clear
+            return snap.ids[veh][ahead & against & near].tolist()
+
+        assert oncoming(snap, 0.0)
+        assert bg.opposite_traffic(False) > 0
+        n_before = len(bg.spawns)
+        assert oncoming(run(world, 1), 0.0) == []
+        for _ in range(10):  # later, oncoming vehicles (turning in) are removed once out of sight
+            assert oncoming(run(world, cfg.update_period), cfg.spawn_min_distance, slack=2.0) == []
+        for r in bg.spawns[n_before:]:
+            k = int(np.argmin(np.linalg.norm(cav_xy(world) - [r.x, r.y], axis=1)))
+            diff = abs((r.heading - world.cav_state.yaw[k] + np.pi) % (2 * np.pi) - np.pi)
+            assert diff <= np.radians(120.0)
+
+
+def test_stuck_vehicles_out_of_sight_are_removed(town: tuple[str | Path, RoadMap]) -> None:
+    cfg = BackgroundConfig(vehicles=0, pedestrians=0, stuck_time=2.0)
+    with standing_world(town, cfg) as (world, bg):
+        m = world.map
+        lane0 = cav_lanes(m)[0]
+        add_background_car(world, "near", lane0, CAV0_S + 20.0)  # within sight of CAV 0
+        far_lanes = np.flatnonzero(m.driving & ~m.lane_internal & (m.lane_length > 40.0))
+        mid = m.index.frenet_to_xy(far_lanes, 0.5 * m.lane_length[far_lanes])
+        dist = nearest_cav_distance(world, mid)
+        far = int(far_lanes[np.argmax((dist > 80.0) & (dist < 140.0))])  # out of sight, inside the radius
+        add_background_car(world, "far", far, 0.5 * m.lane_length[far])
+        run(world, 2)
+        for vid in ("near", "far"):
+            libsumo.vehicle.setSpeed(vid, 0.0)
+        run(world, 100)
+        assert "far" not in world.sumo.actors
+        assert "near" in world.sumo.actors
+        assert bg.stats["removed_stuck"] == 1 and bg.stats["removed_far"] == 0
+
+
+def test_same_seed_same_background(town: tuple[str | Path, RoadMap]) -> None:
+    results = []
+    for _ in range(2):
+        with standing_world(town, BackgroundConfig(), seed=11) as (world, bg):
+            snap = run(world, 100)
+            rows = snap.role == Role.BACKGROUND
+            results.append((snap.ids[rows].tolist(), snap.xy[rows].copy(), dict(bg.stats)))
+    (ids_a, xy_a, stats_a), (ids_b, xy_b, stats_b) = results
+    assert ids_a == ids_b
+    np.testing.assert_array_equal(xy_a, xy_b)
+    assert stats_a == stats_b
+
+
+def test_config_rejects_bad_values() -> None:
+    with pytest.raises(ValueError):
+        BackgroundConfig(vehicle_mix={"hovercraft": 1.0})
+    with pytest.raises(ValueError):
+        BackgroundConfig(update_period=0)
+    with pytest.raises(TypeError):
+        BackgroundConfig(vehicle=3)  # type: ignore[call-arg]

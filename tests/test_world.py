@@ -1,0 +1,178 @@
+"""The embedded world on the mini network: SUMO traffic reacting to CAVs, lights, pedestrians,
+emergency vehicles, control validation and determinism. Behaviour is asserted in physical units."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cmudrive.maps import LaneKind, LanePos, RoadMap, RoutePlanner
+from cmudrive.sim import ControlError, Controls, Role, World, WorldConfig
+from cmudrive.sim.traffic_lights import RED_STATES
+
+DT = 0.05  # [s]
+
+
+def make_world(mini_net: Path, mini: RoadMap, seed: int = 1) -> World:
+    return World(WorldConfig(town=mini_net, seed=seed), road_map=mini)
+
+
+def route_from(mini: RoadMap, lane: str, s: float, goal_lane: str, goal_s: float):
+    return RoutePlanner(mini).plan_lanes(LanePos(mini.lane(lane), s), LanePos(mini.lane(goal_lane), goal_s))
+
+
+def drive(world: World, ticks: int, steer: float = 0.0, throttle: float = 0.0, brake: float = 0.0):
+    """Tick with the same controls for every active CAV; counts collision events on the way."""
+    n = int(world.cav_active.sum())
+    snaps = []
+    world.collision_count = 0  # type: ignore[attr-defined]
+    for _ in range(ticks):
+        snaps.append(world.tick(Controls(np.full(n, steer), np.full(n, throttle), np.full(n, brake))))
+        world.collision_count += len(world.collisions)  # type: ignore[attr-defined]
+    return snaps
+
+
+def test_sumo_car_stops_behind_a_braking_cav(mini_net: Path, mini: RoadMap) -> None:
+    """On the one-lane road C-E, a SUMO car follows a CAV at 10 m/s; the CAV brakes hard to a stop and the
+    car stops behind it, bumper to bumper 1-8 m, without touching it."""
+    with make_world(mini_net, mini) as world:
+        world.add_cav(route_from(mini, "CE_1", 90.0, "CE_1", 190.0), speed=10.0)
+        world.sumo.add_vehicle("follower", "car", ["CE"], Role.BACKGROUND, depart_pos=50.0, depart_speed=10.0)
+        drive(world, 40, throttle=0.3)  # 2 s cruising
+        snaps = drive(world, 200, brake=1.0)  # 10 s braking and standing
+        last = snaps[-1]
+        cav, car = last.index_of("cav0"), last.index_of("follower")
+        assert last.speed[cav] == 0.0 and last.speed[car] < 0.05
+        gap = (last.x[cav] - 0.5 * last.length[cav]) - (last.x[car] + 0.5 * last.length[car])
+        assert 1.0 < gap < 8.0
+        assert world.collision_count == 0  # type: ignore[attr-defined]
+
+
+def test_forced_red_light_stops_background_traffic(mini_net: Path, mini: RoadMap) -> None:
+    """With junction C held red, a SUMO car from W stops 0-6 m before the stop line (x = 192.8 m)."""
+    with make_world(mini_net, mini) as world:
+        world.add_cav(route_from(mini, "CN_1", 100.0, "CN_1", 150.0))  # parked far away, not in the way
+        world.lights.force_lanes(mini.link_from[mini.link_tls >= 0], "r", others="r")
+        world.sumo.add_vehicle("car", "car", ["WC", "CE"], Role.BACKGROUND, depart_pos=100.0, depart_lane=1)
+        snaps = drive(world, 600, brake=1.0)
+        last = snaps[-1]
+        car = last.index_of("car")
+        front = last.x[car] + 0.5 * last.length[car]
+        assert last.speed[car] < 0.05
+        assert 192.8 - 6.0 < front <= 192.8
+        assert all(set(str(s.tls_state[0])) == {"r"} for s in snaps)
+        world.lights.release()
+        snaps = drive(world, 1600, brake=1.0)  # the normal cycle resumes and lets it go
+        assert "car" not in snaps[-1].ids or snaps[-1].x[snaps[-1].index_of("car")] > 200.0
+
+
+def test_cav_driven_through_a_red_light_is_seen_crossing_on_red(mini_net: Path, mini: RoadMap) -> None:
+    """SUMO does not hold our CAVs back: a CAV at full throttle crosses C's stop line while its link is red,
+    and the snapshot shows it on the junction with the red state."""
+    with make_world(mini_net, mini) as world:
+        world.add_cav(route_from(mini, "WC_2", 150.0, "CN_1", 50.0), speed=8.0)
+        wc2 = mini.lane("WC_2")
+        world.lights.force_lanes([wc2], "r", others="G")
+        stop_x = mini.polyline(wc2)[-1, 0]
+        crossed = None
+        for snap in drive(world, 120, throttle=0.6):
+            front = snap.x[0] + 0.5 * snap.length[0]
+            if front > stop_x and crossed is None:
+                crossed = snap
+        assert crossed is not None
+        link = mini.successor_links(wc2)[0]
+        state = str(crossed.tls_state[mini.link_tls[link]])[mini.link_tls_index[link]]
+        assert state in RED_STATES
+
+
+def test_pedestrians_walk_on_sidewalks_and_cross_at_crossings(mini_net: Path, mini: RoadMap) -> None:
+    """A pedestrian walking from the south sidewalk of W-C to its north sidewalk (edge C-W) crosses at
+    junction C on a crossing and is never on a driving lane."""
+    import libsumo
+
+    with make_world(mini_net, mini) as world:
+        world.add_cav(route_from(mini, "NWN_1", 20.0, "NWN_1", 60.0))
+        stages = libsumo.simulation.findIntermodalRoute("WC", "CW", modes="")
+        edges = [e for st in stages for e in st.edges]
+        world.sumo.add_person("walker", edges, depart_pos=170.0, arrival_pos=40.0, role=Role.BACKGROUND)
+        kinds = []
+        for snap in drive(world, 2400):
+            if "walker" in snap.ids:
+                lane = snap.lane[snap.index_of("walker")]
+                kinds.append(LaneKind(int(mini.lane_kind[lane])) if lane >= 0 else None)
+        assert LaneKind.CROSSING in kinds
+        assert LaneKind.DRIVING not in kinds and None not in kinds
+        assert set(kinds) <= {LaneKind.SIDEWALK, LaneKind.CROSSING, LaneKind.WALKINGAREA}
+
+
+@pytest.mark.parametrize(("behind", "moves_aside"), [("ambulance", True), ("car", False)])
+def test_emergency_vehicle_makes_traffic_move_aside(
+    mini_net: Path, mini: RoadMap, behind: str, moves_aside: bool
+) -> None:
+    """A slow car with an ambulance (bluelight device) closing in from behind moves to the edge of its lane
+    by more than 0.5 m; with an ordinary car behind it stays in the middle."""
+    import libsumo
+
+    with make_world(mini_net, mini) as world:
+        world.add_cav(route_from(mini, "CN_1", 100.0, "CN_1", 150.0))
+        world.sumo.add_vehicle(
+            "slow", "car", ["WC", "CE"], Role.BACKGROUND, depart_pos=60.0, depart_lane=1, depart_speed=5.0
+        )
+        world.sumo.add_vehicle(
+            "rear", behind, ["WC", "CE"], Role.BACKGROUND, depart_pos=5.0, depart_lane=1, depart_speed=10.0
+        )
+        drive(world, 1, brake=1.0)
+        libsumo.vehicle.setMaxSpeed("slow", 5.0)
+        shift = 0.0
+        for snap in drive(world, 300, brake=1.0):
+            if "slow" in snap.ids:
+                shift = max(shift, abs(snap.y[snap.index_of("slow")] - (-4.8)))
+        assert (shift > 0.5) == moves_aside
+
+
+def test_nan_controls_are_rejected_naming_the_cav_and_clipping_is_counted(
+    mini_net: Path, mini: RoadMap
+) -> None:
+    with make_world(mini_net, mini) as world:
+        world.add_cav(route_from(mini, "WC_2", 20.0, "WC_2", 150.0))
+        world.add_cav(route_from(mini, "WC_1", 20.0, "WC_1", 150.0))
+        with pytest.raises(ControlError, match=r"CAV cav1: throttle is nan"):
+            world.tick(Controls(np.zeros(2), np.array([0.5, np.nan]), np.zeros(2)))
+        snap = world.tick(Controls(np.zeros(2), np.array([1.7, 0.2]), np.zeros(2)))
+        assert world.cav_clipped.tolist() == [1, 0]
+        assert np.all(np.isfinite(snap.x)) and snap.speed[0] > snap.speed[1]
+        with pytest.raises(ControlError, match=r"one value per active CAV"):
+            world.tick(Controls.zeros(3))
+
+
+def test_finished_cav_leaves_the_world(mini_net: Path, mini: RoadMap) -> None:
+    with make_world(mini_net, mini) as world:
+        world.add_cav(route_from(mini, "WC_2", 20.0, "WC_2", 150.0))
+        world.add_cav(route_from(mini, "WC_1", 20.0, "WC_1", 150.0))
+        world.remove_cav(0)
+        snap = world.tick(Controls.zeros(1))
+        assert snap.ids[snap.role == Role.CAV].tolist() == ["cav1"]
+
+
+def _run(mini_net: Path, mini: RoadMap, seed: int) -> list:
+    with make_world(mini_net, mini, seed) as world:
+        world.add_cav(route_from(mini, "WC_2", 20.0, "CN_1", 100.0), speed=5.0)
+        world.sumo.add_vehicle("a", "car", ["WC", "CE"], Role.BACKGROUND, depart_pos=5.0, depart_lane=1)
+        world.sumo.add_vehicle("b", "truck", ["EC", "CW"], Role.BACKGROUND, depart_pos=5.0)
+        rng = np.random.default_rng(seed)
+        snaps = []
+        for _ in range(300):
+            controls = Controls(rng.uniform(-0.1, 0.1, 1), rng.uniform(0, 0.6, 1), np.zeros(1))
+            snaps.append(world.tick(controls))
+        return snaps
+
+
+def test_same_route_seed_and_controls_give_bit_identical_snapshots(mini_net: Path, mini: RoadMap) -> None:
+    first, second = _run(mini_net, mini, 3), _run(mini_net, mini, 3)
+    for a, b in zip(first, second, strict=True):
+        assert a.ids.tolist() == b.ids.tolist()
+        for field in ("x", "y", "yaw", "speed", "accel", "lane", "signals", "tls_state"):
+            assert np.array_equal(getattr(a, field), getattr(b, field)), field
+    assert len(first[-1].ids) == 3
