@@ -33,6 +33,7 @@ class ActorType:
     tau: float = 1.0  # [s] desired time headway
     colour: tuple[int, int, int] = (120, 130, 150)  # RGB for renderers
     params: dict[str, str] = field(default_factory=dict)  # extra SUMO vType parameters
+    static: bool = False  # never moves (props, parked cars): SUMO class "ignoring", placed where it stands
 
 
 ACTOR_TYPES: dict[str, ActorType] = {

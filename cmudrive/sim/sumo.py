@@ -332,7 +332,7 @@ def _apply_type(t: ActorType, friction: float) -> None:
     import libsumo
 
     vt = libsumo.vehicletype
-    vclass = "ignoring" if t.kind == ActorKind.PROP else t.vclass
+    vclass = "ignoring" if t.static else t.vclass
     vt.setVehicleClass(t.name, vclass)
     vt.setLength(t.name, t.length)
     vt.setWidth(t.name, t.width)
