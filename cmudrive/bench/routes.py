@@ -1,0 +1,464 @@
+"""Multi-CAV route files: the data model, reading and writing, and generation of CAV routes.
+
+A route is one town, one weather preset, one SUMO seed, 1-16 CAV routes and any number of scenarios
+(``docs/route_format.md`` has the schema)::
+
+    <routes>
+      <route id="smoke_00" town="downtown" weather="ClearNoon" seed="0">
+        <cav id="0"><waypoints><position x="141.0" y="-199.9" z="0.0"/> ...</waypoints></cav>
+        <cav id="1"> ... </cav>
+        <scenarios>
+          <scenario name="Accident_1" type="Accident">
+            <trigger_point x="..." y="..." z="..." yaw="..."/> <distance value="40"/> ...
+          </scenario>
+        </scenarios>
+      </route>
+    </routes>
+
+Positions and trigger points are CARLA world coordinates (metres, yaw in degrees; the mirror image in y of
+our map frame, see ``cmudrive.maps.coords``). CAV 0 drives the scenario route. A route file holds 2-16 CAVs
+per route (``MIN_CAVS``..``MAX_CAVS``); a :class:`RouteSpec` in memory may hold one (a single-ego route as
+imported from Bench2Drive), and ``min_cavs=1`` reads and writes such files.
+
+Generation (:func:`add_cavs`, :func:`generate_routes`) places the additional CAVs by the road topology:
+starts on other lanes near CAV 0's start, destinations reachable along the lane graph, stored as sparse
+keypoints that ``cmudrive.maps.densify`` joins again. ``python -m cmudrive.bench.routes generate`` writes a
+file (see :func:`main`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+import os
+import re
+import tempfile
+import xml.etree.ElementTree as ET
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal, overload
+
+import numpy as np
+
+from cmudrive.bench.scenario_types import SCENARIO_TYPES
+from cmudrive.maps.coords import carla_to_map
+from cmudrive.sim.weather import WEATHERS
+
+MIN_CAVS = 2  # [-] CAVs per route in a route file (``min_cavs=1`` allows single-ego files)
+MAX_CAVS = 16  # [-] CAVs per route
+MIN_WAYPOINTS = 2  # [-] per CAV
+
+# CAV generation (add_cavs / generate_routes)
+
+_XML_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_.-]*$")
+_ROUTE_ATTRS = frozenset({"id", "town", "weather", "seed"})
+_POSITION_ATTRS = frozenset({"x", "y", "z", "pitch", "roll", "yaw"})  # pitch/roll/yaw are ignored
+_TRIGGER_ATTRS = frozenset({"x", "y", "z", "yaw", "pitch", "roll"})  # pitch/roll are ignored
+
+ParamValue = str | dict[str, str]
+
+
+class RouteSpecError(ValueError):
+    """A route (file) that breaks the format; ``str()`` names the file, route and CAV where known."""
+
+    def __init__(
+        self, problem: str, path: str | None = None, route_id: str | None = None, cav_id: int | None = None
+    ) -> None:
+        super().__init__(problem, path, route_id, cav_id)  # args rebuild the error after pickling
+        self.problem, self.path, self.route_id, self.cav_id = problem, path, route_id, cav_id
+
+    def within(self, path: str | None = None, route_id: str | None = None) -> RouteSpecError:
+        """The same error with the file and route filled in where still unknown."""
+        return RouteSpecError(self.problem, self.path or path, self.route_id or route_id, self.cav_id)
+
+    @property
+    def detail(self) -> str:
+        """The problem, prefixed with the CAV but not the file or route."""
+        return self.problem if self.cav_id is None else f"CAV {self.cav_id}: {self.problem}"
+
+    def __str__(self) -> str:
+        where = [] if self.path is None else [str(self.path)]
+        if self.route_id is not None:
+            where.append(f"route {self.route_id!r}")
+        return ", ".join(where) + (": " if where else "") + self.detail
+
+
+# ---------------------------------------------------------------------------------------------- data model
+@dataclass(frozen=True, eq=False)
+class CavSpec:
+    """One CAV of a route: its id (0 = the scenario ego) and its route keypoints."""
+
+    id: int
+    waypoints: np.ndarray  # (n, 3) float64 CARLA world x, y, z [m], n >= 2, read-only
+
+    def __post_init__(self) -> None:
+        if isinstance(self.id, bool) or not isinstance(self.id, int | np.integer) or self.id < 0:
+            raise RouteSpecError(f"CAV id must be a non-negative integer, got {self.id!r}")
+        object.__setattr__(self, "id", int(self.id))
+        wps = np.array(self.waypoints, dtype=np.float64)
+        if wps.ndim != 2 or wps.shape[1] != 3:
+            raise RouteSpecError(f"waypoints must have shape (n, 3), got {wps.shape}", cav_id=self.id)
+        if len(wps) < MIN_WAYPOINTS:
+            raise RouteSpecError(f"needs at least {MIN_WAYPOINTS} waypoints, got {len(wps)}", cav_id=self.id)
+        if not np.all(np.isfinite(wps)):
+            bad = int(np.flatnonzero(~np.all(np.isfinite(wps), axis=1))[0])
+            raise RouteSpecError(f"waypoint {bad} has a non-finite coordinate", cav_id=self.id)
+        wps.flags.writeable = False
+        object.__setattr__(self, "waypoints", wps)
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, CavSpec):
+            return NotImplemented
+        return self.id == other.id and np.array_equal(self.waypoints, other.waypoints)
+
+    def __hash__(self) -> int:
+        return hash((self.id, self.waypoints.tobytes()))
+
+
+@dataclass(frozen=True)
+class ScenarioSpec:
+    """One scenario: instance name, type (one of ``SCENARIO_TYPES``), trigger pose and raw parameters.
+
+    ``params`` keeps each parameter element's attributes: ``<distance value="40"/>`` -> ``"40"``; any
+    other attribute set, e.g. ``<frequency from="20" to="100"/>``, -> ``{"from": "20", "to": "100"}``."""
+
+    name: str
+    type: str
+    trigger: tuple[float, float, float, float]  # CARLA world x, y, z [m], yaw [deg]
+    params: dict[str, ParamValue] = dataclasses.field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name:
+            raise RouteSpecError(f"scenario name must be a non-empty string, got {self.name!r}")
+        where = f"scenario {self.name!r}"
+        if self.type not in SCENARIO_TYPES:
+            raise RouteSpecError(f"{where}: unknown scenario type {self.type!r}; {_suggest(self.type)}")
+        trigger = tuple(float(v) for v in self.trigger)
+        if len(trigger) != 4 or not all(math.isfinite(v) for v in trigger):
+            raise RouteSpecError(
+                f"{where}: trigger must be 4 finite numbers (x, y, z, yaw), got {self.trigger}"
+            )
+        object.__setattr__(self, "trigger", trigger)
+        params: dict[str, ParamValue] = {}
+        for key, value in self.params.items():
+            if not isinstance(key, str) or not _XML_NAME.match(key) or key == "trigger_point":
+                raise RouteSpecError(f"{where}: invalid parameter name {key!r}")
+            if isinstance(value, dict):
+                if not all(
+                    isinstance(k, str) and _XML_NAME.match(k) and isinstance(v, str) for k, v in value.items()
+                ):
+                    raise RouteSpecError(f"{where}: parameter {key!r} must map attribute names to strings")
+                params[key] = value["value"] if set(value) == {"value"} else dict(value)
+            elif isinstance(value, str):
+                params[key] = value
+            else:
+                raise RouteSpecError(f"{where}: parameter {key!r} must be a string or a dict, got {value!r}")
+        object.__setattr__(self, "params", params)
+
+    def map_trigger(self) -> tuple[float, float, float]:
+        """Trigger point in the map frame: x, y [m] and yaw [rad]."""
+        (xy,), yaw = carla_to_map(np.array([self.trigger[:2]]), self.trigger[3])
+        return float(xy[0]), float(xy[1]), float(yaw)
+
+
+@dataclass(frozen=True)
+class RouteSpec:
+    """One route: town (a committed town name or a ``.net.xml`` path), weather preset, SUMO seed, CAVs
+    ``0..N-1`` in order (CAV 0 drives the scenario route) and scenarios."""
+
+    id: str
+    town: str
+    weather: str  # a key of cmudrive.sim.weather.WEATHERS
+    seed: int
+    cavs: tuple[CavSpec, ...]
+    scenarios: tuple[ScenarioSpec, ...] = ()
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.id, str) or not self.id:
+            raise RouteSpecError(f"route id must be a non-empty string, got {self.id!r}")
+        err = self._problem()
+        if err:
+            raise RouteSpecError(err, route_id=self.id)
+        object.__setattr__(self, "cavs", tuple(self.cavs))
+        object.__setattr__(self, "scenarios", tuple(self.scenarios))
+
+    def _problem(self) -> str | None:
+        if not isinstance(self.town, str) or not self.town:
+            return "missing town"
+        if self.weather not in WEATHERS:
+            return f"unknown weather {self.weather!r}; valid: {', '.join(WEATHERS)}"
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int | np.integer) or self.seed < 0:
+            return f"seed must be a non-negative integer, got {self.seed!r}"
+        if not 1 <= len(self.cavs) <= MAX_CAVS:
+            return f"needs 1-{MAX_CAVS} CAVs, got {len(self.cavs)}"
+        ids = [c.id for c in self.cavs]
+        if ids != list(range(len(ids))):
+            return f"CAV ids must be 0..{len(ids) - 1} in order, got {ids}"
+        names = [s.name for s in self.scenarios]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            return f"duplicate scenario names {dup}"
+        return None
+
+    def map_waypoints(self, cav: int) -> np.ndarray:
+        """Waypoints of CAV ``cav`` in the map frame, shape (n, 2) [m] (for ``cmudrive.maps.densify``)."""
+        if not 0 <= cav < len(self.cavs):
+            raise RouteSpecError(f"no CAV {cav} (route has {len(self.cavs)})", route_id=self.id)
+        return carla_to_map(self.cavs[cav].waypoints[:, :2])
+
+
+def _suggest(scenario_type: str) -> str:
+    close = difflib.get_close_matches(str(scenario_type), SCENARIO_TYPES, n=3)
+    hint = f"did you mean {', '.join(close)}? " if close else ""
+    return f"{hint}valid types are cmudrive.bench.scenario_types.SCENARIO_TYPES ({len(SCENARIO_TYPES)})"
+
+
+# ------------------------------------------------------------------------------------------------- reading
+def _number(elem: ET.Element, attr: str, what: str, default: float | None = None) -> float:
+    raw = elem.get(attr)
+    if raw is None:
+        if default is not None:
+            return default
+        raise RouteSpecError(f"{what}: missing attribute {attr!r}")
+    try:
+        value = float(raw)
+    except ValueError:
+        raise RouteSpecError(f"{what}: non-numeric {attr}={raw!r}") from None
+    if not math.isfinite(value):
+        raise RouteSpecError(f"{what}: non-finite {attr}={raw!r}")
+    return value
+
+
+def _check_attrs(elem: ET.Element, allowed: frozenset[str], what: str) -> None:
+    unknown = sorted(set(elem.attrib) - allowed)
+    if unknown:
+        raise RouteSpecError(f"{what}: unknown attributes {unknown}; allowed: {sorted(allowed)}")
+
+
+def points_from_xml(elems: Iterable[ET.Element], cav_id: int | None = None) -> np.ndarray:
+    """``<position x y z/>`` (or Leaderboard 1.0 ``<waypoint>``) elements -> (n, 3) CARLA points; z defaults
+    to 0 and pitch/roll/yaw are ignored."""
+    rows = []
+    for i, elem in enumerate(elems):
+        try:
+            _check_attrs(elem, _POSITION_ATTRS, f"waypoint {i}")
+            rows.append([_number(elem, k, f"waypoint {i}", 0.0 if k == "z" else None) for k in "xyz"])
+        except RouteSpecError as exc:
+            raise RouteSpecError(exc.problem, cav_id=cav_id) from None
+    return np.array(rows, dtype=np.float64).reshape(-1, 3)
+
+
+def scenario_from_xml(elem: ET.Element, index: int) -> ScenarioSpec:
+    """A ``<scenario name type>`` element with its ``<trigger_point>`` and parameter elements."""
+    name = elem.get("name") or ""
+    what = f"scenario {name or index!r}"
+    _check_attrs(elem, frozenset({"name", "type"}), what)
+    if not name:
+        raise RouteSpecError(f"scenario {index}: missing name")
+    if elem.get("type") is None:
+        raise RouteSpecError(f"{what}: missing type")
+    triggers = elem.findall("trigger_point")
+    if len(triggers) != 1:
+        raise RouteSpecError(f"{what}: needs exactly one <trigger_point>, got {len(triggers)}")
+    trig = triggers[0]
+    _check_attrs(trig, _TRIGGER_ATTRS, f"{what} trigger_point")
+    trigger = tuple(
+        _number(trig, k, f"{what} trigger_point", 0.0 if k == "z" else None) for k in ("x", "y", "z", "yaw")
+    )
+    params: dict[str, ParamValue] = {}
+    for child in elem:
+        if child.tag == "trigger_point":
+            continue
+        if child.tag in params:
+            raise RouteSpecError(f"{what}: parameter <{child.tag}> given twice")
+        attrs = dict(child.attrib)
+        params[child.tag] = attrs["value"] if set(attrs) == {"value"} else attrs
+    return ScenarioSpec(name=name, type=str(elem.get("type")), trigger=trigger, params=params)  # type: ignore[arg-type]
+
+
+def _route_from_xml(elem: ET.Element, min_cavs: int) -> RouteSpec:
+    for tag, hint in (("waypoints", "its waypoints"), ("weathers", "a <weathers> element")):
+        if elem.find(tag) is not None:
+            raise RouteSpecError(
+                f"has {hint} directly under <route>: this looks like a single-ego Leaderboard/Bench2Drive "
+                "route file; convert it with cmudrive.bench.bench2drive.import_leaderboard_routes"
+            )
+    _check_attrs(elem, _ROUTE_ATTRS, "<route>")
+    unknown = sorted({c.tag for c in elem} - {"cav", "scenarios"})
+    if unknown:
+        raise RouteSpecError(f"unknown elements {unknown} in <route>; allowed: <cav>, <scenarios>")
+    for attr in ("town", "weather"):
+        if not elem.get(attr):
+            raise RouteSpecError(f"missing {attr}")
+    seed_raw = elem.get("seed", "0")
+    if not seed_raw.strip().isdigit():
+        raise RouteSpecError(f"seed must be a non-negative integer, got {seed_raw!r}")
+    cavs = [_cav_from_xml(c, i) for i, c in enumerate(elem.findall("cav"))]
+    if not min_cavs <= len(cavs) <= MAX_CAVS:
+        raise RouteSpecError(f"needs {min_cavs}-{MAX_CAVS} <cav> elements, got {len(cavs)}")
+    ids = sorted(c.id for c in cavs)
+    if ids != list(range(len(cavs))):
+        raise RouteSpecError(f"CAV ids must be 0..{len(cavs) - 1}, each once; got {[c.id for c in cavs]}")
+    scenarios: list[ScenarioSpec] = []
+    for block in elem.findall("scenarios"):
+        for child in block:
+            if child.tag != "scenario":
+                raise RouteSpecError(f"unknown element <{child.tag}> in <scenarios>")
+            scenarios.append(scenario_from_xml(child, len(scenarios)))
+    return RouteSpec(
+        id=str(elem.get("id")),
+        town=str(elem.get("town")),
+        weather=str(elem.get("weather")),
+        seed=int(seed_raw),
+        cavs=tuple(sorted(cavs, key=lambda c: c.id)),
+        scenarios=tuple(scenarios),
+    )
+
+
+def _cav_from_xml(elem: ET.Element, index: int) -> CavSpec:
+    raw = elem.get("id")
+    if raw is None or not raw.strip().isdigit():
+        raise RouteSpecError(f"<cav> number {index} needs an integer id >= 0, got {raw!r}")
+    cav_id = int(raw)
+    try:
+        _check_attrs(elem, frozenset({"id"}), "<cav>")
+        unknown = sorted({c.tag for c in elem} - {"waypoints"})
+        if unknown:
+            raise RouteSpecError(f"unknown elements {unknown} in <cav>; allowed: <waypoints>")
+        blocks = elem.findall("waypoints")
+        if len(blocks) != 1:
+            raise RouteSpecError(
+                "missing <waypoints>" if not blocks else f"{len(blocks)} <waypoints> elements"
+            )
+        bad = sorted({c.tag for c in blocks[0]} - {"position"})
+        if bad:
+            raise RouteSpecError(f"unknown elements {bad} in <waypoints>; allowed: <position>")
+        return CavSpec(cav_id, points_from_xml(blocks[0].findall("position"), cav_id))
+    except RouteSpecError as exc:
+        raise RouteSpecError(exc.problem, cav_id=cav_id) from None
+
+
+def parse_xml(path: str | Path, root_tag: str) -> ET.Element:
+    """Root element of an XML file, checked to be ``<root_tag>``; RouteSpecError naming the file otherwise."""
+    try:
+        root = ET.parse(path).getroot()
+    except FileNotFoundError:
+        raise RouteSpecError("route file not found", path=str(path)) from None
+    except (ET.ParseError, OSError) as exc:
+        raise RouteSpecError(f"not readable as XML: {exc}", path=str(path)) from None
+    if root.tag != root_tag:
+        raise RouteSpecError(f"root element is <{root.tag}>, expected <{root_tag}>", path=str(path))
+    return root
+
+
+@overload
+def read_routes(
+    path: str | Path, strict: Literal[True] = True, min_cavs: int = MIN_CAVS
+) -> list[RouteSpec]: ...
+@overload
+def read_routes(
+    path: str | Path, strict: Literal[False], min_cavs: int = MIN_CAVS
+) -> tuple[list[RouteSpec], list[tuple[str, str]]]: ...
+def read_routes(
+    path: str | Path, strict: bool = True, min_cavs: int = MIN_CAVS
+) -> list[RouteSpec] | tuple[list[RouteSpec], list[tuple[str, str]]]:
+    """Read a route file.
+
+    ``strict=True`` raises :class:`RouteSpecError` (naming the file, route and CAV) on the first bad route;
+    ``strict=False`` returns ``(good_routes, [(route_id, error message), ...])``. A route without an id is
+    reported as ``#k`` (its 1-based position). A file that cannot be read at all always raises."""
+    root = parse_xml(path, "routes")
+    routes: list[RouteSpec] = []
+    errors: list[tuple[str, str]] = []
+    seen: set[str] = set()
+    for k, elem in enumerate(root, start=1):
+        rid = elem.get("id") or f"#{k}"
+        try:
+            if elem.tag != "route":
+                raise RouteSpecError(f"unknown element <{elem.tag}> in <routes>")
+            if not elem.get("id"):
+                raise RouteSpecError("missing route id")
+            if rid in seen:
+                raise RouteSpecError("duplicate route id")
+            seen.add(rid)
+            routes.append(_route_from_xml(elem, min_cavs))
+        except RouteSpecError as exc:
+            err = exc.within(path=str(path), route_id=rid)
+            if strict:
+                raise err from None
+            errors.append((rid, str(err)))
+    return routes if strict else (routes, errors)
+
+
+# ------------------------------------------------------------------------------------------------- writing
+def _num(value: float) -> str:
+    return repr(float(value))  # shortest string that reads back to the same float
+
+
+def _route_to_xml(spec: RouteSpec) -> ET.Element:
+    elem = ET.Element(
+        "route", {"id": spec.id, "town": spec.town, "weather": spec.weather, "seed": str(spec.seed)}
+    )
+    for cav in spec.cavs:
+        wps = ET.SubElement(ET.SubElement(elem, "cav", {"id": str(cav.id)}), "waypoints")
+        for x, y, z in cav.waypoints:
+            ET.SubElement(wps, "position", {"x": _num(x), "y": _num(y), "z": _num(z)})
+    if spec.scenarios:
+        block = ET.SubElement(elem, "scenarios")
+        for sc in spec.scenarios:
+            s = ET.SubElement(block, "scenario", {"name": sc.name, "type": sc.type})
+            ET.SubElement(
+                s, "trigger_point", dict(zip(("x", "y", "z", "yaw"), map(_num, sc.trigger), strict=True))
+            )
+            for key, value in sc.params.items():
+                ET.SubElement(s, key, {"value": value} if isinstance(value, str) else dict(value))
+    return elem
+
+
+def write_routes(
+    routes: Sequence[RouteSpec], path: str | Path, comment: str | None = None, min_cavs: int = MIN_CAVS
+) -> None:
+    """Write ``routes`` to ``path`` atomically (temporary file + rename); ``read_routes`` gives them back
+    exactly. ``comment`` (no ``--`` inside) goes into a header comment."""
+    path = Path(path)
+    ids = [r.id for r in routes]
+    dup = sorted({i for i in ids if ids.count(i) > 1})
+    if dup:
+        raise RouteSpecError(f"duplicate route ids {dup}", path=str(path))
+    for r in routes:
+        if not min_cavs <= len(r.cavs) <= MAX_CAVS:
+            raise RouteSpecError(f"needs {min_cavs}-{MAX_CAVS} CAVs, got {len(r.cavs)}", str(path), r.id)
+    if comment is not None and ("--" in comment or comment.endswith("-")):
+        raise ValueError("an XML comment may not contain '--' or end with '-'")
+    root = ET.Element("routes")
+    root.extend(_route_to_xml(r) for r in routes)
+    ET.indent(root, space="  ")
+    text = '<?xml version="1.0" encoding="utf-8"?>\n'
+    if comment:
+        text += "<!--\n" + "\n".join(f"  {line}".rstrip() for line in comment.splitlines()) + "\n-->\n"
+    text += ET.tostring(root, encoding="unicode") + "\n"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+__all__ = [
+    "MAX_CAVS",
+    "MIN_CAVS",
+    "CavSpec",
+    "RouteSpec",
+    "RouteSpecError",
+    "ScenarioSpec",
+    "points_from_xml",
+    "read_routes",
+    "scenario_from_xml",
+    "write_routes",
+]
