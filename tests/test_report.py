@@ -1,0 +1,102 @@
+"""The report: loading result records (merged file or per-route folder), tables and charts on disk."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import pytest
+from PIL import Image
+
+from cmudrive.bench.metrics import route_result
+from cmudrive.bench.records import INFRACTION_KEYS, STATUS_BLOCKED, STATUS_PERFECT, CavResult, RouteResult
+from cmudrive.bench.report import ResultsError, load_results, write_report
+
+WEATHERS = ("ClearNoon", "CloudySunset", "HardRainNoon", "ClearNight", "FogMorning")
+
+
+def perfect(cav_id: str) -> CavResult:
+    return CavResult(cav_id, STATUS_PERFECT, 100.0, 1.0, 250.0, {k: [] for k in INFRACTION_KEYS})
+
+
+def ten_routes() -> list[RouteResult]:
+    """Routes 0-9; route i has 2 + i % 3 CAVs; routes 0-5 are perfect (DS 100), routes 6-9 have one CAV
+    blocked at 50 % of its route (RC^j = 100 - 50 / N, DS^j = RC^j)."""
+    routes = []
+    for i in range(10):
+        n = 2 + i % 3
+        cavs = [perfect(str(c)) for c in range(n)]
+        if i >= 6:
+            cavs[-1].route_completion, cavs[-1].status = 50.0, STATUS_BLOCKED
+        scenario = ("Accident", "PedestrianCrossing", "T_Junction")[i % 3]
+        routes.append(route_result(f"route_{i:02d}", "downtown", WEATHERS[i % 5], scenario, cavs))
+    return routes
+
+
+def write_folder(root: Path, routes: list[RouteResult]) -> Path:
+    (root / "routes").mkdir(parents=True)
+    for r in routes:
+        (root / "routes" / f"{r.route_id}.json").write_text(json.dumps(r.to_json()))
+    return root
+
+
+def test_report_from_a_folder_of_route_records(tmp_path: Path):
+    routes = ten_routes()
+    expected_ds = sum(r.driving_score for r in routes) / 10
+    # routes 6..9 have 2, 3, 4, 2 CAVs: DS^j = 75, 83.33, 87.5, 75
+    assert expected_ds == pytest.approx((600.0 + 75.0 + (100 - 50 / 3) + 87.5 + 75.0) / 10)
+    paths = write_report(write_folder(tmp_path / "res", routes), tmp_path / "out")
+
+    names = {p.name for p in paths}
+    charts = {"by_scenario_type.png", "by_num_cavs.png", "by_weather.png"}
+    assert names == {"summary.md", "summary.csv", "routes.csv", *charts}
+    assert all(p.is_file() and p.stat().st_size > 0 for p in paths)
+
+    md = (tmp_path / "out" / "summary.md").read_text()
+    assert f"| Driving score DS (0-100) | {expected_ds:.2f} |" in md
+    assert "| Success rate SR (%) | 60.00 |" in md
+    assert "| VehicleTurningRoute | 0 | – | – |" in md  # every scenario type is listed
+
+    with (tmp_path / "out" / "routes.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert [r["route_id"] for r in rows] == [f"route_{i:02d}" for i in range(10)]
+    assert float(rows[7]["driving_score"]) == pytest.approx(100 - 50 / 3)
+
+    with (tmp_path / "out" / "summary.csv").open() as f:
+        summary = {(r["breakdown"], r["group"]): r for r in csv.DictReader(f)}
+    assert float(summary["overall", "all"]["driving_score"]) == pytest.approx(expected_ds)
+    assert summary["by_num_cavs", "3"]["num_routes"] == "3"
+
+    with Image.open(tmp_path / "out" / "by_scenario_type.png") as img:
+        assert img.size[0] >= 2000 and img.size[1] >= 800  # 15 x 6 in at 150 dpi
+
+
+def test_merged_results_file_is_preferred_and_missing_routes_count_zero(tmp_path: Path):
+    routes = ten_routes()
+    root = write_folder(tmp_path / "res", routes[:3])  # a stale folder: results.json wins
+    (root / "results.json").write_text(json.dumps({"summary": {}, "routes": [r.to_json() for r in routes]}))
+    assert [r.route_id for r in load_results(root)] == [r.route_id for r in routes]
+    assert len(load_results(root / "routes")) == 3  # the per-route folder itself
+
+    write_report(root / "results.json", tmp_path / "out", expected_routes=20)
+    ds = sum(r.driving_score for r in routes) / 20
+    md = (tmp_path / "out" / "summary.md").read_text()
+    assert f"| Driving score DS (0-100) | {ds:.2f} |" in md
+    assert "| Routes evaluated / expected | 10 / 20 |" in md
+
+
+def test_malformed_records_name_the_file(tmp_path: Path):
+    root = write_folder(tmp_path / "res", ten_routes()[:2])
+    bad = root / "routes" / "route_99.json"
+    bad.write_text('{"route_id": "route_99", ')
+    with pytest.raises(ResultsError, match=r"route_99\.json: malformed JSON"):
+        load_results(root)
+    bad.write_text('{"route_id": "route_99"}')
+    with pytest.raises(ResultsError, match=r"route_99\.json: record is not a route result"):
+        write_report(root, tmp_path / "out")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ResultsError, match="no route records"):
+        load_results(tmp_path / "empty")
+    with pytest.raises(ResultsError, match="no such results file or folder"):
+        load_results(tmp_path / "nowhere")
