@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import numpy as np
 import typer
@@ -19,6 +19,10 @@ maps_app = typer.Typer(help="Road maps: list, draw, build, import, plan routes."
 app.add_typer(maps_app, name="maps")
 sim_app = typer.Typer(help="The embedded simulator.", no_args_is_help=True)
 app.add_typer(sim_app, name="sim")
+routes_app = typer.Typer(
+    help="Route files: generate multi-CAV routes, import Bench2Drive routes.", no_args_is_help=True
+)
+app.add_typer(routes_app, name="routes")
 console = Console()
 err_console = Console(stderr=True)
 
@@ -175,6 +179,185 @@ def sim_demo(
         console.print(f"  t={t:.2f} s: {a} - {b}")
     if output is not None:
         console.print(f"wrote {output}")
+
+
+@routes_app.command("generate", context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
+def routes_generate(ctx: typer.Context) -> None:
+    """Scenario-free multi-CAV routes: cmudrive routes generate -o FILE [-s SEED] [-l MIN MAX] [-p PREFIX]
+    [-c CAVS] [-w WEATHER] TOWN[:CAVS[:WEATHER]] ..."""
+    from cmudrive.bench.route_gen import main as generate_main
+
+    try:
+        code = generate_main(["generate", *ctx.args])
+    except (MapError, ValueError) as exc:
+        _fail(exc)
+    raise typer.Exit(code=code)
+
+
+@routes_app.command("import")
+def routes_import(
+    source: Annotated[Path, typer.Argument(help="Bench2Drive / Leaderboard-2.0 route file")],
+    output: Annotated[Path, typer.Option("-o", "--output", help="our multi-CAV route file to write")],
+    cavs: Annotated[
+        int, typer.Option(min=1, max=16, help="CAVs per route (CAV 0 drives the original route)")
+    ] = 2,
+    town: Annotated[
+        list[str] | None, typer.Option(help="extra town: name or .net.xml path (repeatable)")
+    ] = None,
+    seed: Annotated[int, typer.Option(help="seed of the added CAVs")] = 0,
+) -> None:
+    """Import single-ego leaderboard routes (routes on towns we have no map of are skipped, with why)."""
+    from cmudrive.bench.bench2drive import import_leaderboard_routes
+    from cmudrive.bench.routes import write_routes
+
+    try:
+        result = import_leaderboard_routes(source, towns=town, extra_cavs=cavs - 1, seed=seed)
+    except (OSError, ValueError, MapError) as exc:
+        _fail(exc)
+    for route_id, reason in result.skipped:
+        err_console.print(f"[yellow]skipped route {route_id}:[/] {reason}")
+    if not result.routes:
+        _fail(ValueError(f"no route of {source} could be imported"))
+    write_routes(result.routes, output, min_cavs=min(cavs, 2))
+    console.print(f"wrote {len(result.routes)} routes to {output} ({len(result.skipped)} skipped)")
+
+
+def _routes_path(name_or_path: str) -> Path:
+    path = Path(name_or_path)
+    if path.suffix == ".xml" or path.exists():
+        return path
+    return Path(__file__).resolve().parent / "assets" / "routes" / f"{name_or_path}.xml"
+
+
+@app.command("eval")
+def evaluate(
+    routes: Annotated[
+        str, typer.Option(help="route file (.xml) or the name of a committed route set")
+    ] = "smoke",
+    agent: Annotated[
+        str, typer.Option(help="agent class as package.module:Class")
+    ] = "cmudrive.agents.pid:PidAgent",
+    out: Annotated[Path, typer.Option(help="output folder")] = Path("out/eval"),
+    workers: Annotated[int, typer.Option(min=1, help="routes run in parallel (local executor)")] = 1,
+    resume: Annotated[
+        bool, typer.Option(help="skip routes already finished in OUT, re-run crashed ones")
+    ] = False,
+    executor: Annotated[str, typer.Option(help="local or ray")] = "local",
+    ray_address: Annotated[str | None, typer.Option(help="address of an existing Ray cluster")] = None,
+    record: Annotated[bool, typer.Option(help="save a replayable log per route in OUT/logs")] = False,
+    tick_cap: Annotated[int, typer.Option(min=1, help="ticks per route at most (20 per second)")] = 4000,
+    step_timeout: Annotated[float, typer.Option(help="seconds an agent may take per step")] = 10.0,
+) -> None:
+    """Evaluate an agent on a route file; one JSON record per route as it finishes, merged results.json."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TaskID, TextColumn, TimeElapsedColumn
+
+    from cmudrive.bench.evaluator import EvalConfig
+    from cmudrive.bench.records import RouteResult
+    from cmudrive.bench.routes import read_routes
+    from cmudrive.bench.runner import LocalExecutor, RayExecutor, run_evaluation
+
+    path = _routes_path(routes)
+    try:
+        specs, invalid = read_routes(path, strict=False)
+    except (OSError, ValueError) as exc:
+        _fail(exc)
+    for route_id, message in invalid:
+        err_console.print(f"[yellow]skipping route {route_id}:[/] {message}")
+    config = EvalConfig(
+        tick_cap=tick_cap, step_timeout=step_timeout, record_dir=out / "logs" if record else None
+    )
+    if executor == "ray":
+        runner: LocalExecutor | RayExecutor = RayExecutor(ray_address)
+    elif executor == "local":
+        runner = LocalExecutor(workers)
+    else:
+        _fail(ValueError(f"--executor {executor!r}: use 'local' or 'ray'"))
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
+    with Progress(*columns, console=console) as progress:
+        overall = progress.add_task(f"{len(specs)} routes from {path.name}", total=len(specs))
+        ticks: dict[str, TaskID] = {}
+
+        def on_progress(route_id: str, tick: int) -> None:
+            if route_id not in ticks:
+                ticks[route_id] = progress.add_task(f"  route {route_id} [ticks]", total=tick_cap)
+            progress.update(ticks[route_id], completed=tick)
+
+        def on_result(result: RouteResult) -> None:
+            progress.advance(overall)
+            if result.route_id in ticks:
+                progress.remove_task(ticks.pop(result.route_id))
+            console.print(
+                f"route {result.route_id}: {result.status}, DS {result.driving_score:.1f} "
+                f"(RC {result.route_completion:.1f}, IS {result.infraction_score:.2f}), "
+                f"{result.wall_time:.0f} s"
+            )
+
+        try:
+            merged = run_evaluation(specs, agent, out, runner, config, resume, on_result, on_progress)
+        except KeyboardInterrupt:
+            err_console.print(f"interrupted: finished routes are in {out / 'routes'}; continue with --resume")
+            raise typer.Exit(code=130) from None
+        except ValueError as exc:
+            _fail(exc)
+    _print_results(merged)
+    console.print(f"results: {out / 'results.json'}")
+
+
+def _print_results(merged: dict[str, Any]) -> None:
+    table = Table(title="CMU-Drive results")
+    for col in ("route", "town", "weather", "CAVs", "status", "RC", "IS", "DS"):
+        table.add_column(col)
+    for r in merged["routes"]:
+        table.add_row(
+            str(r["route_id"]),
+            r["town"],
+            r["weather"],
+            str(r["num_cavs"]),
+            r["status"],
+            f"{r['route_completion']:.1f}",
+            f"{r['infraction_score']:.3f}",
+            f"{r['driving_score']:.1f}",
+        )
+    console.print(table)
+    s = merged["summary"]
+    console.print(
+        f"driving score {s['driving_score']:.2f}, success rate {s['success_rate']:.2f} %, "
+        f"{s['num_routes']} routes"
+    )
+
+
+@app.command("report")
+def report(
+    results: Annotated[Path, typer.Argument(help="results folder or results.json")],
+    output: Annotated[Path, typer.Option("-o", "--output", help="folder for tables and PNGs")] = Path(
+        "report"
+    ),
+) -> None:
+    """Tables and charts (per scenario type, ability, weather, number of CAVs) from evaluation results."""
+    from cmudrive.bench.report import write_report
+
+    try:
+        paths = write_report(results, output)
+    except (OSError, ValueError, MapError) as exc:
+        _fail(exc)
+    for p in paths:
+        console.print(f"wrote {p}")
+
+
+@app.command("replay")
+def replay_log(
+    log: Annotated[Path, typer.Argument(help="route log (.npz) written by eval --record")],
+    output: Annotated[Path, typer.Option("-o", "--output", help=".mp4 or .gif")] = Path("route.mp4"),
+    follow: Annotated[int | None, typer.Option(help="follow this CAV")] = None,
+) -> None:
+    """Render a recorded route as a BEV video with each CAV's route and its infractions marked."""
+    from cmudrive.viz.replay import replay
+
+    try:
+        path = replay(log, output, follow=follow)
+    except (OSError, ValueError, MapError) as exc:
+        _fail(exc)
+    console.print(f"wrote {path}")
 
 
 def main() -> None:

@@ -1,5 +1,32 @@
-"""Agents that drive CAVs. For now: the privileged lane-following autopilot used by the simulator demo."""
+"""Agents that drive CAVs: the batched agent interface, the PID smoke-test agent, the demo autopilot.
 
-from cmudrive.agents.autopilot import LaneFollowingAutopilot
+Write your own agent by subclassing :class:`Agent` (see README, "Evaluate your own agent")."""
 
-__all__ = ["LaneFollowingAutopilot"]
+from cmudrive.agents.autopilot import AutopilotAgent, LaneFollowingAutopilot
+from cmudrive.agents.base import (
+    Agent,
+    AgentSetupError,
+    CavPlan,
+    Observation,
+    Observations,
+    RouteSetup,
+    check_observations,
+    load_agent_class,
+    sparse_plan,
+)
+from cmudrive.agents.pid import PidAgent
+
+__all__ = [
+    "Agent",
+    "AgentSetupError",
+    "AutopilotAgent",
+    "CavPlan",
+    "LaneFollowingAutopilot",
+    "Observation",
+    "Observations",
+    "PidAgent",
+    "RouteSetup",
+    "check_observations",
+    "load_agent_class",
+    "sparse_plan",
+]

@@ -11,12 +11,14 @@ on the same controllers.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 
+from cmudrive.agents.base import Agent, AgentSetupError, Observation, Observations, RouteSetup
 from cmudrive.maps import RoadMap, Route
 from cmudrive.sim.dynamics import Controls, VehicleParams
-from cmudrive.sim.snapshot import Snapshot
+from cmudrive.sim.snapshot import Role, Snapshot
 from cmudrive.sim.traffic_lights import link_states
 
 LOOKAHEAD_MIN = 4.0  # [m] pure-pursuit look-ahead at standstill
@@ -134,3 +136,25 @@ class LaneFollowingAutopilot:
                     continue  # too close to stop for yellow: go on
                 out[row] = np.sqrt(2.0 * COMFORT_DECEL * max(gap, 0.0))
         return out
+
+
+class AutopilotAgent(Agent):
+    """The lane-following autopilot as a privileged benchmark agent: it reads the whole snapshot (actors in
+    its route corridor, light states) and the dense routes. A baseline, not an expert: it does not stop at
+    stop signs, yield at unsignalised junctions or change lanes around obstacles."""
+
+    observations: ClassVar[frozenset[Observation]] = frozenset({Observation.PRIVILEGED})
+
+    def setup(self, route: RouteSetup) -> None:
+        if route.road_map is None or any(c.dense_route is None for c in route.cavs):
+            raise AgentSetupError("AutopilotAgent needs the privileged set-up (map and dense routes)")
+        self.pilot = LaneFollowingAutopilot(route.road_map, [c.dense_route for c in route.cavs])  # type: ignore[misc]
+
+    def run_step(self, obs: Observations) -> Controls:
+        snap = obs.snapshot
+        if snap is None:
+            raise AgentSetupError("AutopilotAgent needs the snapshot (privileged observations)")
+        rows = np.flatnonzero(snap.role == Role.CAV)
+        row_of = {int(str(snap.ids[r])[3:]): r for r in rows}
+        cav_rows = np.array([row_of[int(i)] for i in obs.cav_index], np.int64)
+        return self.pilot.controls(snap, cav_rows, obs.cav_index)

@@ -1,0 +1,159 @@
+"""The batched agent interface: one agent drives every CAV of a route, one call per tick.
+
+An agent declares the observations it needs (:attr:`Agent.observations`); the evaluator checks the
+declaration against what it provides before the route starts (:func:`check_observations`) and raises
+:class:`AgentSetupError` naming the missing ones, so a mismatch fails at setup rather than mid-route.
+
+Per route, ``setup(RouteSetup)`` gives each CAV its global plan: sparse target points like the
+leaderboard's (the dense route downsampled to at most ``TARGET_SPACING`` metres, keeping every point
+where the road option changes), and, for agents that declare :attr:`Observation.PRIVILEGED`, the dense
+1 m route and the map. Then ``run_step(Observations)`` receives all *active* CAVs at once and returns
+their :class:`~cmudrive.sim.dynamics.Controls` as arrays in the same order.
+
+Coordinates are the map frame (x east, y north, metres; yaw counter-clockwise, radians); controls are
+CARLA's (steer + = right).
+"""
+
+from __future__ import annotations
+
+import importlib
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from enum import Enum
+from typing import TYPE_CHECKING, ClassVar
+
+import numpy as np
+
+from cmudrive.maps import RoadMap, RoadOption, Route
+from cmudrive.sim.dynamics import Controls
+
+if TYPE_CHECKING:
+    from cmudrive.sim.snapshot import Snapshot
+
+TARGET_SPACING = 50.0  # [m] at most between two sparse target points (leaderboard: every 50th point)
+
+
+class Observation(str, Enum):
+    """What an agent may ask for."""
+
+    EGO_STATE = "ego_state"  # pose, speed and acceleration of each active CAV
+    PRIVILEGED = "privileged"  # the full snapshot every tick, plus the map and dense routes at setup
+    CAMERA = "camera"  # front camera images (a later issue)
+    OCCUPANCY = "occupancy"  # BEV occupancy maps (a later issue)
+
+
+PROVIDED: frozenset[Observation] = frozenset({Observation.EGO_STATE, Observation.PRIVILEGED})
+
+
+class AgentSetupError(ValueError):
+    """The agent cannot run here: it cannot be imported, or it needs observations that are not provided."""
+
+
+@dataclass(frozen=True)
+class CavPlan:
+    """The global plan of one CAV."""
+
+    cav_id: str
+    target_points: np.ndarray  # (k, 2) sparse target points, map frame [m]
+    target_options: np.ndarray  # (k,) int8 RoadOption at each target point
+    target_speed_limits: np.ndarray  # (k,) [m/s] speed limit at each target point
+    dense_route: Route | None = None  # the 1 m route, for privileged agents only
+
+
+@dataclass(frozen=True)
+class RouteSetup:
+    route_id: str
+    town: str
+    weather: str
+    dt: float  # [s] one tick
+    cavs: tuple[CavPlan, ...]
+    road_map: RoadMap | None = None  # for privileged agents only
+
+
+@dataclass(frozen=True)
+class Observations:
+    """What the agent sees at one tick, for the ``n`` active CAVs (in ``cav_index`` order)."""
+
+    tick: int
+    time: float  # [s]
+    cav_index: np.ndarray  # (n,) int: which CAV of the route (index into RouteSetup.cavs)
+    x: np.ndarray  # (n,) [m]
+    y: np.ndarray  # (n,) [m]
+    yaw: np.ndarray  # (n,) [rad]
+    speed: np.ndarray  # (n,) [m/s]
+    accel: np.ndarray  # (n,) [m/s^2]
+    snapshot: Snapshot | None = None  # the whole world, for privileged agents only
+
+
+class Agent(ABC):
+    """Subclass this, declare :attr:`observations`, and implement :meth:`setup` and :meth:`run_step`."""
+
+    observations: ClassVar[frozenset[Observation]] = frozenset({Observation.EGO_STATE})
+
+    @abstractmethod
+    def setup(self, route: RouteSetup) -> None:
+        """Called once per route, before the first tick."""
+
+    @abstractmethod
+    def run_step(self, obs: Observations) -> Controls:
+        """Controls for every active CAV, arrays of shape (n,) in ``obs.cav_index`` order."""
+
+    def destroy(self) -> None:  # noqa: B027 - optional hook, nothing to do by default
+        """Called once when the route ends (also after a crash)."""
+
+
+def check_observations(agent: Agent, provided: frozenset[Observation] = PROVIDED) -> None:
+    declared = frozenset(Observation(o) for o in type(agent).observations)
+    missing = declared - provided
+    if missing:
+        names = ", ".join(sorted(o.value for o in missing))
+        raise AgentSetupError(
+            f"agent {type(agent).__name__} needs observations this evaluator does not provide: {names} "
+            f"(provided: {', '.join(sorted(o.value for o in provided))})"
+        )
+
+
+def load_agent_class(spec: str) -> type[Agent]:
+    """``"package.module:ClassName"`` -> the class (clear errors for each way this can fail)."""
+    module_name, sep, class_name = spec.partition(":")
+    if not sep or not module_name or not class_name:
+        raise AgentSetupError(f"agent {spec!r} must look like 'package.module:ClassName'")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise AgentSetupError(f"agent {spec!r}: cannot import module {module_name!r}: {exc}") from exc
+    cls = getattr(module, class_name, None)
+    if not isinstance(cls, type) or not issubclass(cls, Agent):
+        raise AgentSetupError(
+            f"agent {spec!r}: {class_name!r} in {module_name} is not a cmudrive Agent subclass"
+        )
+    return cls
+
+
+def sparse_plan(cav_id: str, route: Route, privileged: bool, spacing: float = TARGET_SPACING) -> CavPlan:
+    """Downsample a dense route to target points: every point where the road option changes, and
+    enough points in between that no two are more than ``spacing`` metres apart."""
+    option = route.option
+    keep = np.zeros(len(route), bool)
+    keep[[0, -1]] = True
+    keep[1:] |= option[1:] != option[:-1]
+    keep[:-1] |= option[1:] != option[:-1]  # both ends of a manoeuvre
+    last = 0.0
+    for i in range(len(route)):  # one pass over the dense route at setup: not a hot path
+        if keep[i]:
+            last = route.distance[i]
+        elif route.distance[i] - last >= spacing:
+            keep[i] = True
+            last = route.distance[i]
+    idx = np.flatnonzero(keep)
+    return CavPlan(
+        cav_id=cav_id,
+        target_points=route.xy[idx],
+        target_options=route.option[idx].astype(np.int8),
+        target_speed_limits=route.speed_limit[idx],
+        dense_route=route if privileged else None,
+    )
+
+
+def is_turn(option: np.ndarray) -> np.ndarray:
+    return np.isin(option, [RoadOption.LEFT, RoadOption.RIGHT])

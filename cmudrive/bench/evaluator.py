@@ -1,0 +1,284 @@
+"""The closed loop of one route: world, agent, criteria, tick after tick, until every CAV has finished.
+
+``evaluate_route`` never raises for what goes wrong *inside* a route: an agent that raises, returns NaN
+or hangs past the per-step timeout ends the route as "Failed - Agent crashed"; an error of the
+simulation ends it as "Failed - Simulation crashed"; both keep the traceback in ``RouteResult.error``
+and the scores the CAVs had reached. What is wrong *before* the route starts (unknown town, routes that
+cannot be planned, an agent that cannot be imported or needs observations we do not provide) is an
+error of the input and is raised with the route id in the message; the runner records it and moves on.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+import time
+import traceback
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from cmudrive.agents.base import (
+    PROVIDED,
+    Agent,
+    Observation,
+    Observations,
+    RouteSetup,
+    check_observations,
+    sparse_plan,
+)
+from cmudrive.bench.criteria import CriteriaConfig, RouteCriteria
+from cmudrive.bench.metrics import comfort_score, route_result
+from cmudrive.bench.recording import RouteRecorder, infraction_event
+from cmudrive.bench.records import STATUS_AGENT_CRASHED, STATUS_SIM_CRASHED, STATUS_TICK_CAP, RouteResult
+from cmudrive.bench.routes import RouteSpec
+from cmudrive.maps import MapError, RoadMap, Route, densify, load_map
+from cmudrive.sim.background import BackgroundActivity, BackgroundConfig
+from cmudrive.sim.dynamics import ControlError, Controls
+from cmudrive.sim.snapshot import Role, Snapshot
+from cmudrive.sim.world import World, WorldConfig
+
+DT = 0.05  # [s]
+
+
+class AgentCrash(RuntimeError):
+    """The agent raised, returned unusable controls or exceeded the per-step time limit."""
+
+
+class RouteInputError(ValueError):
+    """The route cannot be run at all (bad town, unplannable waypoints); the message names the route."""
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    tick_cap: int = 4000  # Bench2Drive: 4000 ticks = 200 s of simulated time
+    step_timeout: float = 10.0  # [s] wall clock per run_step call before the agent counts as hung
+    background: BackgroundConfig = field(default_factory=BackgroundConfig)
+    criteria: CriteriaConfig = field(default_factory=CriteriaConfig)
+    record_dir: Path | None = None  # write a replayable log per route here
+
+
+def plan_cav_routes(spec: RouteSpec, road_map: RoadMap) -> list[Route]:
+    routes = []
+    for cav in spec.cavs:
+        try:
+            routes.append(densify(road_map, spec.map_waypoints(cav.id)))
+        except MapError as exc:
+            raise RouteInputError(f"route {spec.id}, CAV {cav.id}: {exc}") from exc
+    return routes
+
+
+def evaluate_route(
+    spec: RouteSpec,
+    make_agent: Callable[[], Agent],
+    config: EvalConfig | None = None,
+    on_tick: Callable[[int], None] | None = None,
+) -> RouteResult:
+    """Run one route to the end and score it (see the module docstring for what is raised)."""
+    config = config or EvalConfig()
+    started = time.perf_counter()
+    try:
+        road_map = load_map(spec.town)
+    except MapError as exc:
+        raise RouteInputError(f"route {spec.id}: {exc}") from exc
+    routes = plan_cav_routes(spec, road_map)
+    agent = make_agent()
+    check_observations(agent)
+    privileged = Observation.PRIVILEGED in type(agent).observations
+    with World(WorldConfig(town=spec.town, seed=spec.seed, weather=spec.weather), road_map=road_map) as world:
+        for route in routes:
+            world.add_cav(route)
+        world.background = BackgroundActivity(config.background)
+        world.background.populate(world)
+        cav_ids = list(world.cav_ids)
+        criteria = RouteCriteria(road_map, routes, cav_ids, config.criteria, DT)
+        recorder = _recorder(spec, routes, config)
+        loop = _Loop(world, criteria, agent, privileged, config, recorder)
+        error = None
+        try:
+            agent.setup(_setup(spec, road_map, routes, cav_ids, privileged))
+            loop.run(on_tick)
+        except AgentCrash:
+            criteria.end_route(STATUS_AGENT_CRASHED)
+            error = traceback.format_exc()
+        except Exception:  # the simulation failed: keep what was scored, record the traceback
+            criteria.end_route(STATUS_SIM_CRASHED)
+            error = traceback.format_exc()
+        finally:
+            _destroy(agent)
+        cavs = criteria.results()
+        for i, cav in enumerate(cavs):
+            cav.comfort = comfort_score(*loop.kinematics(i))
+            cav.first_junction_completion = first_junction_completion(routes[i])
+        if recorder is not None:
+            for i, cav in enumerate(cavs):
+                for events in cav.infractions.values():
+                    for inf in events:  # log ticks count recorded snapshots: world step 1 is log tick 0
+                        recorder.add_events(max(inf.tick - 1, 0), [infraction_event(i, inf)])
+            recorder.save(Path(config.record_dir or ".") / f"{spec.id}.npz")
+    result = route_result(
+        spec.id,
+        spec.town,
+        spec.weather,
+        spec.scenarios[0].type if spec.scenarios else "",
+        cavs,
+        seed=spec.seed,
+    )
+    result.ticks = world.step_count
+    result.wall_time = time.perf_counter() - started
+    result.error = error
+    return result
+
+
+JUNCTION_MARGIN = 8  # [route points] Bench2Drive counts a junction passed 8 points after its first point
+
+
+def first_junction_completion(route: Route) -> float | None:
+    """Route completion [%] at which the route has passed its first junction (Bench2Drive's Traffic_Signs
+    rule: the first in-junction point + 8 points), None when the route has no junction."""
+    hits = np.flatnonzero(route.in_junction)
+    if len(hits) == 0:
+        return None
+    return 100.0 * min(int(hits[0]) + JUNCTION_MARGIN, len(route)) / len(route)
+
+
+def _setup(
+    spec: RouteSpec, road_map: RoadMap, routes: list[Route], cav_ids: list[str], privileged: bool
+) -> RouteSetup:
+    return RouteSetup(
+        route_id=spec.id,
+        town=spec.town,
+        weather=spec.weather,
+        dt=DT,
+        cavs=tuple(sparse_plan(cid, r, privileged) for cid, r in zip(cav_ids, routes, strict=True)),
+        road_map=road_map if privileged else None,
+    )
+
+
+def _recorder(spec: RouteSpec, routes: list[Route], config: EvalConfig) -> RouteRecorder | None:
+    if config.record_dir is None:
+        return None
+    return RouteRecorder(spec.id, spec.town, [r.xy for r in routes])
+
+
+def _destroy(agent: Agent) -> None:
+    try:
+        agent.destroy()
+    except Exception:  # a failing clean-up must not hide the route's result
+        traceback.print_exc()
+
+
+class _Loop:
+    """The tick loop of one route, and the CAV kinematics it keeps for the comfort metric."""
+
+    def __init__(
+        self,
+        world: World,
+        criteria: RouteCriteria,
+        agent: Agent,
+        privileged: bool,
+        config: EvalConfig,
+        recorder: RouteRecorder | None,
+    ) -> None:
+        self.world, self.criteria, self.agent = world, criteria, agent
+        self.privileged, self.config, self.recorder = privileged, config, recorder
+        n = len(world.cav_ids)
+        self.trace = np.full((config.tick_cap + 1, n, 4), np.nan)  # x, y, yaw, speed per tick and CAV
+
+    def run(self, on_tick: Callable[[int], None] | None) -> None:
+        world, criteria = self.world, self.criteria
+        snap = world.snapshot()
+        for tick in range(self.config.tick_cap):
+            rows, index = _active_cavs(snap, world)
+            controls = self._agent_step(snap, tick, rows, index)
+            try:
+                snap = world.tick(controls)
+            except ControlError as exc:
+                raise AgentCrash(str(exc)) from exc
+            self._trace(snap, tick + 1)
+            criteria.update(snap, world.collisions)
+            if self.recorder is not None:
+                self.recorder.record(snap, controls, np.flatnonzero(snap.role == Role.CAV))
+            for i in np.flatnonzero(criteria.newly_finished()):
+                world.remove_cav(int(i))
+            if on_tick is not None:
+                on_tick(tick + 1)
+            if criteria.finished().all():
+                return
+        criteria.end_route(STATUS_TICK_CAP)
+
+    def _agent_step(self, snap: Snapshot, tick: int, rows: np.ndarray, index: np.ndarray) -> Controls:
+        obs = Observations(
+            tick=tick,
+            time=snap.time,
+            cav_index=index,
+            x=snap.x[rows],
+            y=snap.y[rows],
+            yaw=snap.yaw[rows],
+            speed=snap.speed[rows],
+            accel=snap.accel[rows],
+            snapshot=snap if self.privileged else None,
+        )
+        try:
+            with _time_limit(self.config.step_timeout):
+                controls = self.agent.run_step(obs)
+        except _StepTimeout as exc:
+            raise AgentCrash(
+                f"run_step took longer than {self.config.step_timeout:.1f} s at tick {tick}"
+            ) from exc
+        except Exception as exc:
+            raise AgentCrash(f"run_step raised at tick {tick}: {exc!r}") from exc
+        if not isinstance(controls, Controls):
+            raise AgentCrash(f"run_step returned {type(controls).__name__}, not Controls, at tick {tick}")
+        return controls
+
+    def _trace(self, snap: Snapshot, tick: int) -> None:
+        rows, index = _active_cavs(snap, self.world)
+        self.trace[tick, index] = np.stack(
+            [snap.x[rows], snap.y[rows], snap.yaw[rows], snap.speed[rows]], axis=1
+        )
+
+    def kinematics(self, cav: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(t, x, y, yaw, speed) of one CAV over the ticks it was in the world."""
+        rows = np.flatnonzero(~np.isnan(self.trace[:, cav, 0]))
+        x, y, yaw, v = self.trace[rows, cav].T
+        return rows * DT, x, y, np.unwrap(yaw), v
+
+
+def _active_cavs(snap: Snapshot, world: World) -> tuple[np.ndarray, np.ndarray]:
+    """Snapshot rows of the CAVs still in the world, and their CAV indices ("cav3" -> 3). CAVs that finished
+    in the last tick are still in ``snap`` (taken before they left) and are dropped here."""
+    rows = np.flatnonzero(snap.role == Role.CAV)
+    index = np.array([int(str(c)[3:]) for c in snap.ids[rows]], np.int64)
+    keep = world.cav_active[index]
+    return rows[keep], index[keep]
+
+
+class _StepTimeout(Exception):
+    pass
+
+
+@contextmanager
+def _time_limit(seconds: float) -> Iterator[None]:
+    """Interrupt the block after ``seconds`` of wall time (SIGALRM; only in a process's main thread,
+    elsewhere the block runs unguarded)."""
+    if seconds <= 0 or threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def fire(signum: int, frame: object) -> None:
+        raise _StepTimeout
+
+    previous = signal.signal(signal.SIGALRM, fire)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0.0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+__all__ = ["PROVIDED", "AgentCrash", "EvalConfig", "RouteInputError", "evaluate_route", "plan_cav_routes"]

@@ -1,0 +1,77 @@
+"""The agent interface: declarations checked at setup, import by path, sparse plans like the leaderboard's."""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import numpy as np
+import pytest
+
+from cmudrive.agents.base import (
+    Agent,
+    AgentSetupError,
+    Observation,
+    Observations,
+    RouteSetup,
+    check_observations,
+    load_agent_class,
+    sparse_plan,
+)
+from cmudrive.agents.pid import PidAgent
+from cmudrive.maps import LanePos, RoadMap, RoadOption, RoutePlanner
+from cmudrive.sim.dynamics import Controls
+
+
+class CameraAgent(Agent):
+    observations: ClassVar[frozenset[Observation]] = frozenset({Observation.EGO_STATE, Observation.CAMERA})
+
+    def setup(self, route: RouteSetup) -> None:
+        pass
+
+    def run_step(self, obs: Observations) -> Controls:
+        return Controls.zeros(len(obs.cav_index))
+
+
+def test_missing_observations_are_refused_at_setup() -> None:
+    with pytest.raises(AgentSetupError, match=r"CameraAgent needs observations .*: camera"):
+        check_observations(CameraAgent())
+    check_observations(PidAgent())
+
+
+def test_agents_load_by_import_path_with_clear_errors() -> None:
+    assert load_agent_class("cmudrive.agents.pid:PidAgent") is PidAgent
+    with pytest.raises(AgentSetupError, match=r"must look like 'package\.module:ClassName'"):
+        load_agent_class("cmudrive.agents.pid.PidAgent")
+    with pytest.raises(
+        AgentSetupError, match=r"cannot import module 'no_such_pkg\.mod': No module named 'no_such_pkg'"
+    ):
+        load_agent_class("no_such_pkg.mod:Agent")
+    with pytest.raises(
+        AgentSetupError, match=r"'Controls' in cmudrive\.sim\.dynamics is not a cmudrive Agent"
+    ):
+        load_agent_class("cmudrive.sim.dynamics:Controls")
+
+
+def test_sparse_plan_keeps_manoeuvres_and_spacing(mini: RoadMap) -> None:
+    """W -> N with a lane change and a left turn: targets at most 50 m apart, both ends of the turn kept."""
+    route = RoutePlanner(mini).plan_lanes(LanePos(mini.lane("WC_1"), 5.0), LanePos(mini.lane("CN_1"), 150.0))
+    plan = sparse_plan("cav0", route, privileged=False)
+    gaps = np.linalg.norm(np.diff(plan.target_points, axis=0), axis=1)
+    assert gaps.max() <= 50.0 + 1e-6
+    assert len(plan.target_points) < len(route) / 10
+    assert RoadOption.LEFT in plan.target_options.tolist()
+    assert plan.target_points[-1] == pytest.approx(route.xy[-1])
+    assert plan.dense_route is None and sparse_plan("cav0", route, privileged=True).dense_route is route
+
+
+def test_pid_agent_steers_towards_its_path_with_carla_signs(mini: RoadMap) -> None:
+    """A CAV 1 m to the right of its path steers left (CARLA: negative steer) and accelerates."""
+    route = RoutePlanner(mini).plan_lanes(LanePos(mini.lane("WC_2"), 5.0), LanePos(mini.lane("WC_2"), 150.0))
+    agent = PidAgent()
+    agent.setup(RouteSetup("r", "mini", "ClearNoon", 0.05, (sparse_plan("cav0", route, False),)))
+    x0, y0 = route.xy[20]
+    obs = Observations(
+        0, 0.0, np.array([0]), np.array([x0]), np.array([y0 - 1.0]), np.zeros(1), np.zeros(1), np.zeros(1)
+    )
+    controls = agent.run_step(obs)
+    assert controls.steer[0] < -0.05 and controls.throttle[0] > 0.5 and controls.brake[0] == 0.0

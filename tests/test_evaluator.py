@@ -1,0 +1,135 @@
+"""The evaluation loop end to end: a PID agent completes an empty route perfectly, a standing agent is
+blocked after 60 s, crashing / NaN / hanging agents are isolated, results are resumable."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import ClassVar
+
+import numpy as np
+import pytest
+
+from cmudrive.agents import Agent, Observation, Observations, PidAgent, RouteSetup
+from cmudrive.bench import CavSpec, EvalConfig, LocalExecutor, RouteSpec, evaluate_route, run_evaluation
+from cmudrive.bench.records import STATUS_AGENT_CRASHED, STATUS_BLOCKED, STATUS_PERFECT
+from cmudrive.maps import load_map
+from cmudrive.maps.coords import map_to_carla
+from cmudrive.sim.background import BackgroundConfig
+from cmudrive.sim.dynamics import Controls
+
+EMPTY = BackgroundConfig(vehicles=0, pedestrians=0)  # "an empty town": no background actors
+
+
+def ring_route(route_id: str = "ring", seed: int = 0) -> RouteSpec:
+    """Two CAVs on the two lanes of a 488 m stretch of interurban's ring road, no junction on the way."""
+    m = load_map("interurban")
+    cavs = []
+    for cav, (lane, s0, s1) in enumerate((("R1a-R2a_0", 20.0, 230.0), ("R1a-R2a_1", 60.0, 280.0))):
+        i = m.lane(lane)
+        s = np.linspace(s0, s1, 5)
+        xy = m.index.frenet_to_xy(np.full(5, i), s)
+        cavs.append(CavSpec(cav, np.column_stack([map_to_carla(xy), np.zeros(5)])))
+    return RouteSpec(route_id, "interurban", "ClearNoon", seed, tuple(cavs))
+
+
+class StandStill(Agent):
+    observations: ClassVar[frozenset[Observation]] = frozenset({Observation.EGO_STATE})
+
+    def setup(self, route: RouteSetup) -> None:
+        pass
+
+    def run_step(self, obs: Observations) -> Controls:
+        return Controls(
+            np.zeros(len(obs.cav_index)), np.zeros(len(obs.cav_index)), np.ones(len(obs.cav_index))
+        )
+
+
+class RaisesAtTick10(PidAgent):
+    def run_step(self, obs: Observations) -> Controls:
+        if obs.tick == 10:
+            raise RuntimeError("boom at tick 10")
+        return super().run_step(obs)
+
+
+class ReturnsNaN(PidAgent):
+    def run_step(self, obs: Observations) -> Controls:
+        c = super().run_step(obs)
+        return Controls(c.steer, np.full_like(c.throttle, np.nan), c.brake) if obs.tick == 5 else c
+
+
+class Hangs(PidAgent):
+    def run_step(self, obs: Observations) -> Controls:
+        if obs.tick == 3:
+            import time
+
+            time.sleep(5.0)
+        return super().run_step(obs)
+
+
+def test_pid_agent_completes_an_empty_route_perfectly() -> None:
+    result = evaluate_route(ring_route(), PidAgent, EvalConfig(background=EMPTY))
+    assert result.status == STATUS_PERFECT and result.success
+    for cav in result.cavs:
+        assert cav.status == STATUS_PERFECT
+        assert cav.route_completion == 100.0 and cav.infraction_score == 1.0
+        assert cav.comfort is not None and 0.3 < cav.comfort <= 1.0  # full-throttle starts exceed 2.4 m/s^2
+    assert result.driving_score == 100.0
+    assert result.ticks < 1000  # ~210-220 m at ~20 m/s (0.8 x 90 km/h) with acceleration: about 15-25 s
+
+
+def test_never_moving_agent_is_blocked_after_60_seconds() -> None:
+    result = evaluate_route(ring_route(), StandStill, EvalConfig(background=EMPTY))
+    assert [c.status for c in result.cavs] == [STATUS_BLOCKED] * 2
+    assert result.ticks == pytest.approx(60.0 / 0.05, abs=3)  # blocked once 60 s have passed standing
+    assert result.route_completion < 5.0 and not result.success
+
+
+@pytest.mark.parametrize(
+    ("agent", "message"),
+    [(RaisesAtTick10, "boom at tick 10"), (ReturnsNaN, "throttle is nan"), (Hangs, "longer than 0.5 s")],
+)
+def test_crashing_agents_end_the_route_as_agent_crashed(agent: type[Agent], message: str) -> None:
+    result = evaluate_route(ring_route(), agent, EvalConfig(background=EMPTY, step_timeout=0.5))
+    assert result.status == STATUS_AGENT_CRASHED
+    assert all(c.status == STATUS_AGENT_CRASHED for c in result.cavs)
+    assert result.error is not None and message in result.error
+    assert result.ticks < 20
+
+
+def test_crash_isolation_and_resume(tmp_path: Path) -> None:
+    """A crashing route does not stop the others; resume re-runs only the crashed one."""
+    routes = [ring_route("good", seed=1), ring_route("bad", seed=2)]
+    config = EvalConfig(background=EMPTY, tick_cap=300)
+    ran: list[str] = []
+
+    merged = run_evaluation(
+        routes[:1], PidAgent, tmp_path, LocalExecutor(2), config, on_result=lambda r: ran.append(r.route_id)
+    )
+    merged = run_evaluation(
+        routes,
+        f"{__name__}:RaisesAtTick10",
+        tmp_path,
+        LocalExecutor(2),
+        config,
+        resume=True,
+        on_result=lambda r: ran.append(r.route_id),
+    )
+    assert ran == ["good", "bad"]  # "good" finished in the first run: resume skipped it
+    by_id = {r["route_id"]: r for r in merged["routes"]}
+    assert by_id["bad"]["status"] == STATUS_AGENT_CRASHED and by_id["good"]["status"] != STATUS_AGENT_CRASHED
+    assert [r["route_id"] for r in merged["routes"]] == ["good", "bad"]  # route-file order
+    assert merged["summary"]["num_routes"] == 2 and merged["summary"]["num_crashed"] == 1
+    on_disk = json.loads((tmp_path / "results.json").read_text())
+    assert on_disk["summary"] == merged["summary"]
+    ran.clear()
+    run_evaluation(
+        routes,
+        PidAgent,
+        tmp_path,
+        LocalExecutor(1),
+        config,
+        resume=True,
+        on_result=lambda r: ran.append(r.route_id),
+    )
+    assert ran == ["bad"]  # crashed routes run again on resume
