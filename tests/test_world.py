@@ -68,6 +68,45 @@ def test_forced_red_light_stops_background_traffic(mini_net: Path, mini: RoadMap
         assert "car" not in snaps[-1].ids or snaps[-1].x[snaps[-1].index_of("car")] > 200.0
 
 
+def test_scenario_car_runs_the_red_light_that_stops_background_traffic(mini_net: Path, mini: RoadMap) -> None:
+    """With C held red, a scenario car told to ignore lights drives through; a background car stops."""
+    with make_world(mini_net, mini) as world:
+        world.add_cav(route_from(mini, "CN_1", 100.0, "CN_1", 150.0))
+        world.lights.force_lanes(mini.link_from[mini.link_tls >= 0], "r", others="r")
+        world.sumo.add_vehicle("runner", "car", ["WC", "CE"], Role.SCENARIO, depart_pos=100.0, depart_lane=1)
+        world.sumo.add_vehicle("obeys", "car", ["WC", "CE"], Role.BACKGROUND, depart_pos=60.0, depart_lane=2)
+        drive(world, 1)
+        world.sumo.override("runner", ignore_lights=True)
+        last = drive(world, 400)[-1]
+        assert last.x[last.index_of("runner")] > 250.0  # through the junction, on C-E
+        assert last.x[last.index_of("obeys")] < 192.8 and last.speed[last.index_of("obeys")] < 0.05
+
+
+def test_standing_scenario_car_is_passed_in_the_other_lane() -> None:
+    """On downtown's 3-lane one-way avenue J2_0-J2_1, a scenario car held at 0 m/s in the middle lane is an
+    obstacle: the background car behind it changes lanes and passes it without touching it."""
+    from cmudrive.maps import load_map
+
+    town = load_map("downtown")
+    middle = town.lane("J2_0-J2_1_3")
+    with World(WorldConfig(town="downtown", seed=1), road_map=town) as world:
+        world.add_cav(route_from(town, "J2_0-J2_1_2", 5.0, "J2_0-J2_1_2", 20.0))
+        route = ["J2_0-J2_1", "J2_1-J2_2"]
+        index = int(town.lane_index[middle])
+        world.sumo.add_vehicle(
+            "obstacle", "car", route, Role.SCENARIO, depart_pos=80.0, depart_lane=index, depart_speed=0.0
+        )
+        world.sumo.add_vehicle("behind", "car", route, Role.BACKGROUND, depart_pos=30.0, depart_lane=index)
+        drive(world, 1, brake=1.0)
+        world.sumo.override("obstacle", speed=0.0, lane_changes=False)
+        passed = False
+        for snap in drive(world, 400, brake=1.0):
+            b, o = snap.index_of("behind"), snap.index_of("obstacle")
+            passed = passed or snap.y[b] > snap.y[o] + 8.0  # the avenue runs north
+        assert passed and world.collision_count == 0  # type: ignore[attr-defined]
+        assert snap.speed[o] == 0.0 and snap.lane[o] == middle
+
+
 def test_cav_driven_through_a_red_light_is_seen_crossing_on_red(mini_net: Path, mini: RoadMap) -> None:
     """SUMO does not hold our CAVs back: a CAV at full throttle crosses C's stop line while its link is red,
     and the snapshot shows it on the junction with the red state."""

@@ -35,7 +35,7 @@ from cmudrive.bench.metrics import comfort_score, route_result
 from cmudrive.bench.recording import RouteRecorder, infraction_event
 from cmudrive.bench.records import STATUS_AGENT_CRASHED, STATUS_SIM_CRASHED, STATUS_TICK_CAP, RouteResult
 from cmudrive.bench.routes import RouteSpec
-from cmudrive.maps import MapError, RoadMap, Route, densify, load_map
+from cmudrive.maps import MapError, RoadMap, Route, load_map
 from cmudrive.sim.background import BackgroundActivity, BackgroundConfig
 from cmudrive.sim.dynamics import ControlError, Controls
 from cmudrive.sim.snapshot import Role, Snapshot
@@ -62,13 +62,10 @@ class EvalConfig:
 
 
 def plan_cav_routes(spec: RouteSpec, road_map: RoadMap) -> list[Route]:
-    routes = []
-    for cav in spec.cavs:
-        try:
-            routes.append(densify(road_map, spec.map_waypoints(cav.id)))
-        except MapError as exc:
-            raise RouteInputError(f"route {spec.id}, CAV {cav.id}: {exc}") from exc
-    return routes
+    try:
+        return spec.dense_routes(road_map)
+    except MapError as exc:
+        raise RouteInputError(str(exc)) from exc
 
 
 def evaluate_route(

@@ -167,12 +167,7 @@ def add_cavs(
     road_map = road_map if road_map is not None else load_map(spec.town)
     topo = _Topology(road_map)
     where = f"route {spec.id!r} on {road_map.name!r}"
-    dense = []
-    for cav in spec.cavs:
-        try:
-            dense.append(densify(road_map, spec.map_waypoints(cav.id)))
-        except RouteError as exc:
-            raise RouteError(f"{where}, CAV {cav.id}: {exc}") from None
+    dense = spec.dense_routes(road_map)
     route0 = dense[0]
     starts = [r.xy[0] for r in dense]
     used = {int(r.lane[0]) for r in dense} | _clear_lanes(route0, spec.scenarios)

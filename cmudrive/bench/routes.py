@@ -43,6 +43,7 @@ from typing import Literal, overload
 import numpy as np
 
 from cmudrive.bench.scenario_types import SCENARIO_TYPES
+from cmudrive.maps import RoadMap, Route, RouteError, densify
 from cmudrive.maps.coords import carla_to_map
 from cmudrive.sim.weather import WEATHERS
 
@@ -207,6 +208,17 @@ class RouteSpec:
         if not 0 <= cav < len(self.cavs):
             raise RouteSpecError(f"no CAV {cav} (route has {len(self.cavs)})", route_id=self.id)
         return carla_to_map(self.cavs[cav].waypoints[:, :2])
+
+    def dense_routes(self, road_map: RoadMap) -> list[Route]:
+        """Every CAV's waypoints joined into a dense 1 m route (``cmudrive.maps.densify``), in CAV order;
+        a RouteError names the route and the CAV."""
+        routes = []
+        for cav in self.cavs:
+            try:
+                routes.append(densify(road_map, self.map_waypoints(cav.id)))
+            except RouteError as exc:
+                raise RouteError(f"route {self.id!r} on {road_map.name!r}, CAV {cav.id}: {exc}") from None
+        return routes
 
 
 def _suggest(scenario_type: str) -> str:

@@ -34,6 +34,10 @@ from cmudrive.sim.snapshot import SIGNAL_BRAKELIGHT, SIGNAL_EMERGENCY_BLUE, Acto
 SUMO_STEP = 0.05  # [s]
 LATERAL_RESOLUTION = 0.8  # [m] sublane width
 MAX_DEPART_DELAY = 5.0  # [s]
+SPEED_MODE_ALL = 31  # SUMO speed mode: safe speed, accel, decel, right of way, red lights all respected
+SPEED_MODE_RIGHT_OF_WAY = 8  # bit: respect right of way at junctions
+SPEED_MODE_RED_LIGHT = 16  # bit: brake for red lights
+LANE_CHANGE_MODE_DEFAULT = 1621  # SUMO's default lane-change mode
 BRAKE_LIGHT_DECEL = 0.5  # [m/s^2] a SUMO vehicle decelerating harder than this shows brake lights
 MATCH_RADIUS = 5.0  # [m] moveToXY looks for a lane this close first ...
 MATCH_RADIUS_FAR = 100.0  # [m] ... and this far when the vehicle is off the road (SUMO's default)
@@ -263,6 +267,33 @@ class SumoSession:
             remove_from_sumo(pid, is_person=True)  # a person without a plan would fail the next step
             raise SumoError(f"SUMO refused the walk of pedestrian {pid} ({edges[:3]}...): {exc}") from exc
         self.actors[pid] = SumoActor(t.kind, role, t.length, t.width, is_person=True)
+
+    def override(
+        self,
+        vid: str,
+        *,
+        ignore_lights: bool = False,
+        ignore_right_of_way: bool = False,
+        speed: float | None = None,
+        lane_changes: bool = True,
+    ) -> None:
+        """Scenario control of a SUMO vehicle: run red lights, ignore right of way at junctions, hold a
+        fixed ``speed`` [m/s] (0: a standing obstacle that traffic changes lanes around; -1: back to SUMO's
+        own choice), no lane changes. Uses SUMO's speed-mode bits (default 31: every check on)."""
+        import libsumo
+
+        mode = SPEED_MODE_ALL
+        if ignore_lights:
+            mode &= ~SPEED_MODE_RED_LIGHT
+        if ignore_right_of_way:
+            mode &= ~SPEED_MODE_RIGHT_OF_WAY
+        try:
+            libsumo.vehicle.setSpeedMode(vid, mode)
+            if speed is not None:
+                libsumo.vehicle.setSpeed(vid, speed)
+            libsumo.vehicle.setLaneChangeMode(vid, LANE_CHANGE_MODE_DEFAULT if lane_changes else 0)
+        except libsumo.TraCIException as exc:
+            raise SumoError(f"cannot override vehicle {vid}: {exc}") from exc
 
     def remove(self, actor_id: str) -> None:
         """Take a registered actor out of SUMO now (also one still waiting for insertion)."""
