@@ -75,6 +75,7 @@ class SumoArrays:
     speed: np.ndarray
     accel: np.ndarray
     lane_ids: list[str]
+    lane_pos: np.ndarray  # (n,) [m] position of the vehicle's front along its lane (SUMO), 0 for persons
     signals: np.ndarray
     extra_lane_ids: list[str]  # SUMO lane of each id asked for in ``read(extra=...)`` ("" if unknown)
 
@@ -158,10 +159,12 @@ class SumoSession:
         angle, speed, accel = np.zeros(n), np.zeros(n), np.zeros(n)  # accel stays 0 on the first read
         signals = np.zeros(n, np.int32)
         lane_ids = [""] * n
+        lane_pos = np.zeros(n)  # [m] along the lane (vehicles; 0 for persons)
         if vids:
             pos[vrows] = [veh.getPosition(v) for v in vids]
             angle[vrows] = [veh.getAngle(v) for v in vids]
             speed[vrows] = [veh.getSpeed(v) for v in vids]
+            lane_pos[vrows] = [veh.getLanePosition(v) for v in vids]
             for i, v in zip(vrows.tolist(), vids, strict=True):
                 lane_ids[i] = veh.getLaneID(v)
         if pids:
@@ -195,6 +198,7 @@ class SumoSession:
             speed=speed,
             accel=accel,
             lane_ids=lane_ids,
+            lane_pos=lane_pos,
             signals=signals,
             extra_lane_ids=[veh.getLaneID(a) if a in running else "" for a in extra or []],
         )

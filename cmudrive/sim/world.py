@@ -34,7 +34,7 @@ from cmudrive.sim.actor_types import ACTOR_TYPES, actor_type
 from cmudrive.sim.collisions import CollisionEvents, detect_collisions
 from cmudrive.sim.dynamics import CavState, Controls, VehicleParams, step_bicycle, validate_controls
 from cmudrive.sim.snapshot import SIGNAL_BLINKER_EMERGENCY, SIGNAL_BRAKELIGHT, ActorKind, Role, Snapshot
-from cmudrive.sim.sumo import SUMO_STEP, SumoSession, remove_from_sumo, start_sumo
+from cmudrive.sim.sumo import SUMO_STEP, SumoArrays, SumoSession, remove_from_sumo, start_sumo
 from cmudrive.sim.traffic_lights import TrafficLights
 from cmudrive.sim.weather import Weather, get_weather
 
@@ -43,6 +43,7 @@ if TYPE_CHECKING:
 
 TICK_PHASES = ("cavs", "sumo_step", "background", "snapshot", "collisions")  # World.timing keys [s]
 COLLISION_HOLD = 5.0  # [s] a SUMO actor that hit something waits this long before driving on
+MAX_YAW_TO_LANE = np.radians(15.0)  # [rad] a SUMO vehicle on a normal lane points at most this far off it
 BRAKE_LIGHT_THRESHOLD = 0.05  # brake input above which a CAV shows brake lights
 
 
@@ -334,6 +335,8 @@ class World:
         )
         sumo = self.sumo.read(extra=cav_ids)
         lookup = m._lane_lookup
+        sumo_lane = np.array([lookup.get(lid, -1) for lid in sumo.lane_ids], np.int32)
+        sumo_x, sumo_y, sumo_yaw = self._straighten(sumo, sumo_lane)
         # a CAV's lane is where SUMO mapped it (heading-aware, within MATCH_RADIUS); off the road: -1
         cav_lane = [
             -1 if off else lookup.get(lid, -1)
@@ -358,22 +361,43 @@ class World:
                 [np.full(n_c, cav_type.kind), [t.kind for t in layer_types], sumo.kind]
             ).astype(np.int8),
             role=np.concatenate([np.full(n_c, Role.CAV), L.role, sumo.role]).astype(np.int8),
-            x=np.concatenate([st.x[cav], L.x, sumo.x]),
-            y=np.concatenate([st.y[cav], L.y, sumo.y]),
-            yaw=np.concatenate([st.yaw[cav], L.yaw, sumo.yaw]),
+            x=np.concatenate([st.x[cav], L.x, sumo_x]),
+            y=np.concatenate([st.y[cav], L.y, sumo_y]),
+            yaw=np.concatenate([st.yaw[cav], L.yaw, sumo_yaw]),
             speed=np.concatenate([st.speed[cav], L.speed, sumo.speed]),
             accel=np.concatenate([st.accel[cav], np.zeros(n_l), sumo.accel]),
             length=np.concatenate(
                 [np.full(n_c, cav_type.length), [t.length for t in layer_types], sumo.length]
             ),
             width=np.concatenate([np.full(n_c, cav_type.width), [t.width for t in layer_types], sumo.width]),
-            lane=np.concatenate(
-                [cav_lane, layer_lane, [lookup.get(lid, -1) for lid in sumo.lane_ids]]
-            ).astype(np.int32),
+            lane=np.concatenate([cav_lane, layer_lane, sumo_lane]).astype(np.int32),
             signals=signals,
             valid=np.ones(n_c + n_l + n_s, bool),
             tls_state=self.lights.read(),
         )
+
+    def _straighten(self, sumo: SumoArrays, lane: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Centre x, y and yaw of SUMO's actors, with vehicles on normal lanes pointing at most
+        MAX_YAW_TO_LANE off the lane direction. SUMO's sublane model reports a vehicle's angle including
+        its last lateral move, which leaves a vehicle that stopped mid-manoeuvre at up to ~35 degrees to its
+        lane (its box overlapping its neighbours'); the box turns about the front bumper, SUMO's own
+        reference point."""
+        m = self.map
+        x, y, yaw = sumo.x.copy(), sumo.y.copy(), sumo.yaw.copy()
+        rows = np.flatnonzero((lane >= 0) & (sumo.kind != ActorKind.PEDESTRIAN))
+        rows = rows[~m.lane_internal[lane[rows]]]
+        if len(rows) == 0:
+            return x, y, yaw
+        lane_heading = m.index.heading_at(lane[rows], sumo.lane_pos[rows])
+        deviation = (yaw[rows] - lane_heading + np.pi) % (2.0 * np.pi) - np.pi
+        bounded = lane_heading + np.clip(deviation, -MAX_YAW_TO_LANE, MAX_YAW_TO_LANE)
+        half = 0.5 * sumo.length[rows]
+        front_x = x[rows] + half * np.cos(yaw[rows])
+        front_y = y[rows] + half * np.sin(yaw[rows])
+        x[rows] = front_x - half * np.cos(bounded)
+        y[rows] = front_y - half * np.sin(bounded)
+        yaw[rows] = (bounded + np.pi) % (2.0 * np.pi) - np.pi
+        return x, y, yaw
 
     def _empty_snapshot(self) -> Snapshot:
         return Snapshot.from_rows(0, 0.0, np.zeros(0, dtype=str), x=np.zeros(0), y=np.zeros(0))
