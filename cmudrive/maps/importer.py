@@ -30,12 +30,22 @@ import time
 import xml.etree.ElementTree as ET
 from collections import Counter, defaultdict
 from collections.abc import Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
 from cmudrive.maps.errors import MapError
 from cmudrive.maps.netconvert import find_netconvert, run_netconvert
+from cmudrive.maps.opendrive import (
+    Xodr,
+    edges_by_road,
+    guess_tls,
+    read_net,
+    read_xodr,
+    section_of,
+    sign_approaches,
+    write_patches,
+)
 
 SourceKind = Literal["opendrive", "osm"]
 TlsPolicy = Literal["auto", "opendrive", "guess", "none"]
@@ -48,8 +58,6 @@ GUESS_MIN_EXITS = 2  # [edges] driving edges leaving a junction for a guessed tr
 GUESS_MAX_SPEED = 25.0  # [m/s] (90 km/h) no guessed light where a faster road enters (highway ramps)
 STOP_SIGN = "206"  # OpenDRIVE signal type of a stop sign (German catalogue, used by CARLA)
 YIELD_SIGN = "205"  # OpenDRIVE signal type of a yield sign; netconvert itself lowers the road's priority
-SPEED_UNITS = {"m/s": 1.0, "km/h": 1.0 / 3.6, "mph": 0.44704}  # [m/s per unit]
-SPEED_LANE_TYPES = frozenset({"driving", "entry", "exit", "onRamp", "offRamp", "stop"})
 JUNCTION_PARAM = "opendrive.junction"  # junction parameter: its OpenDRIVE junction id
 STOP_SIGNALS_PARAM = "opendrive.stopSignals"  # junction parameter: its OpenDRIVE stop-sign ids
 WARNING_KINDS = 12  # distinct warning kinds kept in a report
@@ -145,7 +153,7 @@ def import_map(src: Path | str, dst: Path | str, options: ImportOptions | None =
     kind = detect_source(src)
     if dst.is_dir():
         raise MapError(f"cannot import {src}: the output {dst} is a folder")
-    xodr = _read_xodr(src) if kind == "opendrive" else None
+    xodr = read_xodr(src) if kind == "opendrive" else None
     find_netconvert()  # fail before creating anything when netconvert is missing
     created_parent = not dst.parent.exists()
     dst.parent.mkdir(parents=True, exist_ok=True)
@@ -156,7 +164,7 @@ def import_map(src: Path | str, dst: Path | str, options: ImportOptions | None =
             tls_source, logs = _import_opendrive(src, result, xodr, options, work)
         else:
             tls_source, logs = _import_osm(src, result, options, work)
-        net = _read_net(result)
+        net = read_net(result)
         if not net.edges:
             raise MapError(f"{src} produced a network without roads")
         warnings = summarise_warnings(line for log in logs for line in _lines(log))
@@ -211,7 +219,7 @@ def detect_source(src: Path) -> SourceKind:
 
 
 def _import_opendrive(
-    src: Path, dst: Path, xodr: _Xodr, options: ImportOptions, work: Path
+    src: Path, dst: Path, xodr: Xodr, options: ImportOptions, work: Path
 ) -> tuple[TlsSource, list[Path]]:
     policy = options.tls if options.tls != "auto" else ("opendrive" if xodr.tl_signal_ids() else "guess")
     first, logs = work / "pass1.net.xml", [work / "pass1.log", work / "pass2.log"]
@@ -229,12 +237,12 @@ def _import_opendrive(
         raise MapError(f"cannot import {src}: the lane type map {TYPEMAP} is missing from the installation")
     run_netconvert(args, first, source=str(src))
 
-    net = _read_net(first)
-    stops = _sign_approaches(xodr, net, STOP_SIGN)
-    signed = set(stops) | set(_sign_approaches(xodr, net, YIELD_SIGN))
-    guessed = _guess_tls(xodr, net, signed) if policy == "guess" else []
+    net = read_net(first)
+    stops = sign_approaches(xodr, net, STOP_SIGN)
+    signed = set(stops) | set(sign_approaches(xodr, net, YIELD_SIGN))
+    guessed = guess_tls(xodr, net, signed) if policy == "guess" else []
     nodes, edges = work / "patch.nod.xml", work / "patch.edg.xml"
-    _write_patches(nodes, edges, xodr, net, stops, options.road_speeds)
+    write_patches(nodes, edges, xodr, net, stops, options.road_speeds)
     args = [
         "--sumo-net-file", str(first), "--node-files", str(nodes), "--edge-files", str(edges),
         "--offset.disable-normalization", "--output.original-names",
@@ -269,287 +277,6 @@ def _sumo_typemaps(*names: str) -> list[str]:
 
 
 # --------------------------------------------------------------------------------------------------
-# reading OpenDRIVE: roads, junctions, signals
-
-
-@dataclass(frozen=True)
-class _Signal:
-    id: str
-    road: str
-    s: float  # [m] along the road
-    orientation: str  # "+" (traffic along +s), "-" or "none"
-    type: str
-
-
-@dataclass
-class _Road:
-    id: str
-    junction: str  # "-1" outside junctions
-    length: float  # [m]
-    links: dict[str, tuple[str, str]] = field(default_factory=dict)  # predecessor/successor -> (type, id)
-    speed: float | None = None  # [m/s] the road's first <type><speed>
-    lane_speeds: bool = False  # some lane has its own <speed>, which netconvert applies itself
-
-
-@dataclass
-class _Xodr:
-    roads: dict[str, _Road]
-    junctions: set[str]
-    signals: list[_Signal]  # signals, and signal references resolved to their signal's type
-    controllers: int
-
-    def tl_signal_ids(self) -> set[str]:
-        return {s.id for s in self.signals if _is_traffic_light(s.type)}
-
-    def signs(self, sign_type: str) -> list[_Signal]:
-        return [s for s in self.signals if s.type == sign_type]
-
-
-def _is_traffic_light(signal_type: str) -> bool:
-    """The OpenDRIVE signal types netconvert builds traffic lights from (1000001-1000013, 1000020)."""
-    code = int(signal_type) if signal_type.isdigit() else 0
-    return (1000001 <= code <= 1000013 and code != 1000008) or code == 1000020
-
-
-def _read_xodr(src: Path) -> _Xodr:
-    roads: dict[str, _Road] = {}
-    placed: list[tuple[ET.Element, str]] = []  # <signal> and <signalReference> elements, with their road
-    try:
-        root = ET.parse(src).getroot()
-        for el in root.iter("road"):
-            road = _read_road(el)
-            roads[road.id] = road
-            placed += [(sig, road.id) for sig in el.iterfind("signals/*")]
-        types = {el.attrib["id"]: el.get("type", "") for el, _ in placed if el.tag == "signal"}
-        signals = [
-            _Signal(el.attrib["id"], road, float(el.get("s", "0")), el.get("orientation", "none"),
-                    types[el.attrib["id"]])
-            for el, road in placed if el.get("id") in types
-        ]  # fmt: skip
-    except (ET.ParseError, OSError, KeyError, ValueError) as exc:
-        raise MapError(f"{src} is not a readable OpenDRIVE file: {exc!r}") from exc
-    junctions = {el.attrib["id"] for el in root.iter("junction") if "id" in el.attrib}
-    return _Xodr(roads, junctions, signals, len(root.findall("controller")))
-
-
-def _read_road(el: ET.Element) -> _Road:
-    road = _Road(el.attrib["id"], el.get("junction", "-1"), float(el.get("length", "0")))
-    for kind in ("predecessor", "successor"):
-        link = el.find(f"link/{kind}")
-        if link is not None:
-            road.links[kind] = (link.get("elementType", "road"), link.get("elementId", ""))
-    speed = el.find("type/speed")
-    unit = SPEED_UNITS.get(speed.get("unit", "m/s")) if speed is not None else None
-    if speed is not None and unit is not None and _is_number(speed.get("max", "")):
-        road.speed = float(speed.attrib["max"]) * unit
-    road.lane_speeds = el.find("lanes/laneSection//lane/speed") is not None
-    return road
-
-
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
-
-
-# --------------------------------------------------------------------------------------------------
-# reading a written network (ElementTree: fast, and independent of sumolib's reading options)
-
-
-@dataclass(frozen=True)
-class _Lane:
-    id: str
-    index: int
-    type: str  # the OpenDRIVE lane type for OpenDRIVE imports
-    allow: frozenset[str] | None  # classes in "allow"; None when not given
-    deny: frozenset[str]  # classes in "disallow"
-    orig: tuple[str, ...]  # origId tokens, "road_lane" for OpenDRIVE imports
-
-    def allows(self, vclass: str) -> bool:
-        if "all" in self.deny or vclass in self.deny:
-            return False
-        return self.allow is None or "all" in self.allow or vclass in self.allow
-
-
-@dataclass(frozen=True)
-class _Edge:
-    id: str
-    from_node: str
-    to_node: str
-    priority: int
-    lanes: tuple[_Lane, ...]
-
-    def drivable(self) -> bool:
-        return any(lane.allows("passenger") for lane in self.lanes)
-
-    def roads(self) -> set[str]:
-        return {tok.rpartition("_")[0] for lane in self.lanes for tok in lane.orig}
-
-
-@dataclass
-class _Net:
-    edges: dict[str, _Edge] = field(default_factory=dict)  # normal edges
-    functions: Counter[str] = field(default_factory=Counter)  # edge count per special function
-    internal_lanes: list[_Lane] = field(default_factory=list)
-    junction_types: dict[str, str] = field(default_factory=dict)  # non-internal junctions
-    junction_params: dict[str, dict[str, str]] = field(default_factory=dict)
-    tls: dict[str, dict[str, str]] = field(default_factory=dict)  # traffic-light id -> parameters
-
-
-def _params(el: ET.Element) -> dict[str, str]:
-    return {p.attrib["key"]: p.get("value", "") for p in el.iterfind("param")}
-
-
-def _read_net(path: Path) -> _Net:
-    try:
-        root = ET.parse(path).getroot()
-    except (ET.ParseError, OSError) as exc:
-        raise MapError(f"{path} is not a readable SUMO network: {exc}") from exc
-    net = _Net()
-    for el in root.iterfind("edge"):
-        lanes = tuple(
-            _Lane(ln.attrib["id"], int(ln.get("index", "0")), ln.get("type", ""),
-                  frozenset(ln.attrib["allow"].split()) if "allow" in ln.attrib else None,
-                  frozenset(ln.get("disallow", "").split()), tuple(_params(ln).get("origId", "").split()))
-            for ln in el.iterfind("lane")
-        )  # fmt: skip
-        function = el.get("function", "")
-        if function:
-            net.functions[function] += 1
-            net.internal_lanes += lanes if function == "internal" else ()
-        else:
-            edge = _Edge(
-                el.attrib["id"], el.get("from", ""), el.get("to", ""), int(el.get("priority", "0")), lanes
-            )
-            net.edges[edge.id] = edge
-    for el in root.iterfind("junction"):
-        if el.get("type") != "internal":
-            net.junction_types[el.attrib["id"]] = el.get("type", "")
-            net.junction_params[el.attrib["id"]] = _params(el)
-    for el in root.iterfind("tlLogic"):
-        net.tls.setdefault(el.attrib["id"], {}).update(_params(el))
-    return net
-
-
-def _road_edges(net: _Net) -> dict[str, list[_Edge]]:
-    """OpenDRIVE road id -> the normal edges built from it."""
-    by_road: dict[str, list[_Edge]] = defaultdict(list)
-    for edge in net.edges.values():
-        for road in edge.roads():
-            by_road[road].append(edge)
-    return by_road
-
-
-def _section(edge_id: str, road: str) -> tuple[bool, int] | None:
-    """(right-hand side?, lane section index) of an edge netconvert named after ``road``, else None."""
-    sides = [(False, edge_id)] + ([(True, edge_id[1:])] if edge_id.startswith("-") else [])
-    for right, base in sides:
-        head, _, index = base.rpartition("#")
-        if base == road or (head == road and index.isdigit()):
-            return right, int(index) if base != road else 0
-    return None
-
-
-# --------------------------------------------------------------------------------------------------
-# pass 2: signs, guessed traffic lights, road speeds, junction ids
-
-
-def _sign_approaches(xodr: _Xodr, net: _Net, sign_type: str) -> dict[str, dict[str, list[str]]]:
-    """Junction id -> {approach edge id -> sign ids} for the signs of ``sign_type`` in the .xodr."""
-    by_road = _road_edges(net)
-    result: dict[str, dict[str, list[str]]] = defaultdict(lambda: defaultdict(list))
-    for sign in xodr.signs(sign_type):
-        edge = _approach(sign, xodr, by_road)
-        if edge is not None and edge.drivable() and edge.to_node in net.junction_types:
-            result[edge.to_node][edge.id].append(sign.id)
-    return result
-
-
-def _approach(sign: _Signal, xodr: _Xodr, by_road: dict[str, list[_Edge]]) -> _Edge | None:
-    """The edge whose traffic a sign faces, at the end that leads into a junction."""
-    road = xodr.roads.get(sign.road)
-    if road is None:
-        return None
-    if road.junction != "-1":  # on a connecting road: the incoming road's edge into that junction
-        kind, other = road.links.get("predecessor" if sign.orientation != "-" else "successor", ("", ""))
-        edges = [e for e in by_road.get(other, []) if kind == "road" and e.to_node == road.junction]
-        return edges[0] if edges else None
-    forward = sign.orientation == "+" or (sign.orientation != "-" and sign.s > road.length / 2)
-    sections = [
-        (sec[1], e)
-        for e in by_road.get(road.id, [])
-        if (sec := _section(e.id, road.id)) and sec[0] == forward
-    ]
-    if not sections:
-        return None
-    # right-hand traffic (+s) leaves the road through its last section, left-hand through its first
-    return (max if forward else min)(sections, key=lambda item: item[0])[1]
-
-
-def _guess_tls(xodr: _Xodr, net: _Net, skip: set[str]) -> list[str]:
-    """OpenDRIVE junctions that look like intersections and have no signals or signs."""
-    entering: Counter[str] = Counter()
-    leaving: Counter[str] = Counter()
-    fastest: dict[str, float] = defaultdict(float)  # [m/s] fastest road entering the junction
-    for edge in net.edges.values():
-        if edge.drivable():
-            entering[edge.to_node] += 1
-            leaving[edge.from_node] += 1
-            speeds = [xodr.roads[r].speed or 0.0 for r in edge.roads() if r in xodr.roads]
-            fastest[edge.to_node] = max([fastest[edge.to_node], *speeds])
-    return sorted(
-        j for j in xodr.junctions & set(net.junction_types) - skip
-        if not net.junction_types[j].startswith("traffic_light") and fastest[j] <= GUESS_MAX_SPEED
-        and entering[j] >= GUESS_MIN_APPROACHES and leaving[j] >= GUESS_MIN_EXITS
-    )  # fmt: skip
-
-
-def _write_patches(
-    nodes_path: Path, edges_path: Path, xodr: _Xodr, net: _Net, stops: dict[str, dict[str, list[str]]],
-    road_speeds: bool,
-) -> None:  # fmt: skip
-    """Node patch: OpenDRIVE junction ids, stop junctions. Edge patch: minor stop approaches, speeds."""
-    nodes, edges = ET.Element("nodes"), ET.Element("edges")
-    node_el: dict[str, ET.Element] = {}
-    edge_el: dict[str, ET.Element] = {}
-
-    def node(junction: str) -> ET.Element:
-        if junction not in node_el:
-            node_el[junction] = ET.SubElement(nodes, "node", id=junction)
-        return node_el[junction]
-
-    def edge(edge_id: str) -> ET.Element:
-        if edge_id not in edge_el:
-            edge_el[edge_id] = ET.SubElement(edges, "edge", id=edge_id)
-        return edge_el[edge_id]
-
-    for junction in sorted(xodr.junctions & set(net.junction_types)):
-        ET.SubElement(node(junction), "param", key=JUNCTION_PARAM, value=junction)
-    for junction, approaches in sorted(stops.items()):
-        if net.junction_types[junction].startswith("traffic_light"):
-            continue  # the light rules; its signs are for when it is off
-        entering = [e for e in net.edges.values() if e.to_node == junction and e.drivable()]
-        others = [e.priority for e in entering if e.id not in approaches]
-        el = node(junction)
-        el.set("type", "priority_stop" if others else "allway_stop")
-        signs = sorted({s for ids in approaches.values() for s in ids})
-        ET.SubElement(el, "param", key=STOP_SIGNALS_PARAM, value=" ".join(signs))
-        for edge_id in sorted(approaches) if others else ():  # stop approaches become the minor roads
-            edge(edge_id).set("priority", str(min(others) - 1))
-    for road_id, road_edges in _road_edges(net).items() if road_speeds else ():
-        road = xodr.roads.get(road_id)
-        if road is None or road.speed is None or road.lane_speeds:
-            continue
-        for e in road_edges:
-            for lane in (ln for ln in e.lanes if ln.type in SPEED_LANE_TYPES):
-                ET.SubElement(edge(e.id), "lane", index=str(lane.index), speed=f"{road.speed:.2f}")
-    ET.ElementTree(nodes).write(nodes_path, encoding="UTF-8", xml_declaration=True)
-    ET.ElementTree(edges).write(edges_path, encoding="UTF-8", xml_declaration=True)
-
-
-# --------------------------------------------------------------------------------------------------
 # warnings and the id map
 
 
@@ -573,11 +300,11 @@ def summarise_warnings(lines: Iterable[str], keep: int = WARNING_KINDS) -> tuple
 
 def opendrive_id_map(net_path: Path | str) -> OpenDriveIdMap:
     """Read the OpenDRIVE road, lane, junction and signal ids back from a network ``import_map`` wrote."""
-    net = _read_net(Path(net_path))
+    net = read_net(Path(net_path))
     road_edges: dict[str, tuple[str, ...]] = {}
     lanes: dict[tuple[str, int, int], str] = {}
-    for road, edges in _road_edges(net).items():
-        sections = {e.id: _section(e.id, road) for e in edges}
+    for road, edges in edges_by_road(net).items():
+        sections = {e.id: section_of(e.id, road) for e in edges}
         order = {e_id: (2, 0) if sec is None else (int(not sec[0]), sec[1]) for e_id, sec in sections.items()}
         road_edges[road] = tuple(sorted(sections, key=lambda e_id: (order[e_id], e_id)))
         for edge in edges:
