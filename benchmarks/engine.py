@@ -28,7 +28,6 @@ from cmudrive.agents.autopilot import LaneFollowingAutopilot
 from cmudrive.maps import load_map, resolve_map_path
 from cmudrive.sim.background import BackgroundActivity, BackgroundConfig
 from cmudrive.sim.demo import demo_routes
-from cmudrive.sim.snapshot import Role
 from cmudrive.sim.sumo import start_sumo
 from cmudrive.sim.world import World, WorldConfig
 
@@ -82,8 +81,7 @@ def run_world(town: str, ticks: int, cavs: int, seed: int) -> tuple[float, int, 
         for k in range(WARMUP_TICKS + ticks):
             if k == WARMUP_TICKS:
                 world.timing = dict.fromkeys(world.timing, 0.0)
-            rows = np.flatnonzero(snap.role == Role.CAV)
-            index = np.array([int(str(i)[3:]) for i in snap.ids[rows]], np.int64)
+            rows, index = snap.cav_rows()
             controls = pilot.controls(snap, rows, index)
             if k == WARMUP_TICKS:
                 traffic = traffic_of_world()

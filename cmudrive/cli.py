@@ -173,7 +173,7 @@ def sim_demo(
     console.print(
         f"{stats.ticks} ticks; CAVs drove {stats.cav_distance.sum():.0f} m in total; up to "
         f"{stats.max_background_vehicles} background vehicles and {stats.max_pedestrians} pedestrians; "
-        f"{len(stats.collisions)} collision events"
+        f"{len(stats.collisions)} collision events ({stats.sumo_collisions} seen by SUMO's own check)"
     )
     for t, a, b in stats.collisions[:10]:
         console.print(f"  t={t:.2f} s: {a} - {b}")

@@ -18,7 +18,7 @@ import numpy as np
 from cmudrive.agents.base import Agent, AgentSetupError, Observation, Observations, RouteSetup
 from cmudrive.maps import RoadMap, Route
 from cmudrive.sim.dynamics import Controls, VehicleParams
-from cmudrive.sim.snapshot import Role, Snapshot
+from cmudrive.sim.snapshot import Snapshot
 from cmudrive.sim.traffic_lights import link_states
 
 LOOKAHEAD_MIN = 4.0  # [m] pure-pursuit look-ahead at standstill
@@ -154,7 +154,7 @@ class AutopilotAgent(Agent):
         snap = obs.snapshot
         if snap is None:
             raise AgentSetupError("AutopilotAgent needs the snapshot (privileged observations)")
-        rows = np.flatnonzero(snap.role == Role.CAV)
-        row_of = {int(str(snap.ids[r])[3:]): r for r in rows}
+        rows, index = snap.cav_rows()
+        row_of = dict(zip(index.tolist(), rows.tolist(), strict=True))
         cav_rows = np.array([row_of[int(i)] for i in obs.cav_index], np.int64)
         return self.pilot.controls(snap, cav_rows, obs.cav_index)

@@ -248,8 +248,7 @@ class _Loop:
 def _active_cavs(snap: Snapshot, world: World) -> tuple[np.ndarray, np.ndarray]:
     """Snapshot rows of the CAVs still in the world, and their CAV indices ("cav3" -> 3). CAVs that finished
     in the last tick are still in ``snap`` (taken before they left) and are dropped here."""
-    rows = np.flatnonzero(snap.role == Role.CAV)
-    index = np.array([int(str(c)[3:]) for c in snap.ids[rows]], np.int64)
+    rows, index = snap.cav_rows()
     keep = world.cav_active[index]
     return rows[keep], index[keep]
 

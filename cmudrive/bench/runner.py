@@ -25,8 +25,8 @@ from multiprocessing import get_context
 from pathlib import Path
 from typing import Any, Protocol
 
-from cmudrive.agents.base import Agent, load_agent_class
-from cmudrive.bench.evaluator import EvalConfig, evaluate_route
+from cmudrive.agents.base import Agent, AgentSetupError, load_agent_class
+from cmudrive.bench.evaluator import AgentCrash, EvalConfig, evaluate_route
 from cmudrive.bench.metrics import route_result, summarize
 from cmudrive.bench.records import STATUS_AGENT_CRASHED, STATUS_SIM_CRASHED, RouteResult
 from cmudrive.bench.routes import RouteSpec
@@ -61,7 +61,9 @@ def run_task(task: RouteTask, progress: Any = None) -> RouteResult:
 
 
 def crashed_record(spec: RouteSpec, exc: BaseException) -> RouteResult:
-    status = STATUS_AGENT_CRASHED if "agent" in type(exc).__name__.lower() else STATUS_SIM_CRASHED
+    """The record of a route that could not run: the agent's fault (it cannot be set up, or crashed)
+    or anything else (bad route input, a dead worker process)."""
+    status = STATUS_AGENT_CRASHED if isinstance(exc, AgentSetupError | AgentCrash) else STATUS_SIM_CRASHED
     result = route_result(
         spec.id,
         spec.town,

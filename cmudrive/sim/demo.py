@@ -35,6 +35,7 @@ class DemoStats:
     background: dict[str, int] = field(default_factory=dict)
     max_background_vehicles: int = 0
     max_pedestrians: int = 0
+    sumo_collisions: int = 0  # collisions SUMO's own lane-based check saw among its vehicles
 
 
 def demo_routes(road_map: RoadMap, n: int, rng: np.random.Generator) -> list[Route]:
@@ -98,8 +99,7 @@ def run_demo(
             with Progress(transient=True) as progress:
                 task = progress.add_task(f"demo on {road_map.name}", total=ticks)
                 for _ in range(ticks):
-                    rows = np.flatnonzero(snap.role == Role.CAV)
-                    index = np.array([int(str(i)[3:]) for i in snap.ids[rows]], np.int64)
+                    rows, index = snap.cav_rows()
                     before = world.cav_state.x.copy(), world.cav_state.y.copy()
                     snap = world.tick(pilot.controls(snap, rows, index))
                     stats.cav_distance += np.hypot(
@@ -122,6 +122,7 @@ def run_demo(
             for _ in frames():
                 pass
         stats.background = dict(world.background.stats)
+        stats.sumo_collisions = world.sumo.sumo_collisions
     return stats
 
 

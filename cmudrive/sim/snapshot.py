@@ -11,7 +11,7 @@ converted when reading.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from enum import IntEnum
 
 import numpy as np
@@ -95,14 +95,19 @@ class Snapshot:
         y = self.y[:, None] + lon * s[:, None] + lat * c[:, None]
         return np.stack([x, y], axis=-1)
 
-    def select(self, mask: np.ndarray) -> Snapshot:
-        """A snapshot of the actors where ``mask`` is True (traffic-light state kept)."""
+    def select(self, rows: np.ndarray) -> Snapshot:
+        """A snapshot of the actors at ``rows`` (a bool mask or indices, in that order); lights kept."""
         kwargs = {}
         for f in fields(self):
             value = getattr(self, f.name)
             per_actor = isinstance(value, np.ndarray) and f.name != "tls_state"
-            kwargs[f.name] = value[mask] if per_actor else value
+            kwargs[f.name] = value[rows] if per_actor else value
         return Snapshot(**kwargs)
+
+    def cav_rows(self) -> tuple[np.ndarray, np.ndarray]:
+        """Rows of the CAVs in this snapshot and their CAV indices ("cav3" -> 3), in snapshot order."""
+        rows = np.flatnonzero(self.role == Role.CAV)
+        return rows, np.array([int(str(c)[3:]) for c in self.ids[rows]], np.int64)  # <= 16 CAVs
 
     def index_of(self, actor_id: str) -> int:
         hits = np.flatnonzero(self.ids == actor_id)

@@ -119,12 +119,6 @@ class SumoSession:
             if self in _ACTIVE:
                 _ACTIVE.remove(self)
 
-    @property
-    def time(self) -> float:
-        import libsumo
-
-        return float(libsumo.simulation.getTime())
-
     def step(self) -> None:
         """One SUMO step; forget the actors that arrived."""
         import libsumo

@@ -81,10 +81,6 @@ class TrafficLights:
                 libsumo.trafficlight.setProgram(tls, program)
                 libsumo.trafficlight.setPhase(tls, phase)
 
-    @property
-    def forced(self) -> list[str]:
-        return list(self._forced)
-
 
 def link_states(road_map: RoadMap, tls_state: np.ndarray) -> np.ndarray:
     """(L,) signal character per link from the (T,) light strings of a snapshot."""

@@ -100,7 +100,7 @@ class World:
         self._cav_edges: dict[str, list[str]] = {}
         self.layer = LayerActors()
         self.collisions: CollisionEvents = detect_collisions(self._empty_snapshot())
-        self._held: dict[str, float] = {}  # SUMO actor -> time its collision hold ends
+        self._held: dict[str, tuple[float, float]] = {}  # SUMO actor -> (hold ends [s], speed to restore)
         self.background: BackgroundActivity | None = None  # keeps traffic around the CAVs when set
         self.last_snapshot: Snapshot | None = None
         # wall-clock seconds spent per tick phase, summed over ticks (and the tick count): for profiling
@@ -413,23 +413,21 @@ class World:
                 info = self.sumo.actors.get(actor)
                 if info is None or snap.role[other] == Role.BACKGROUND or actor in self._held:
                     continue
-                self._held[actor] = self.time + COLLISION_HOLD
-                if info.is_person:
+                if info.is_person:  # a person's "speed" is its walking speed: keep it to restore it
+                    self._held[actor] = (self.time + COLLISION_HOLD, libsumo.person.getMaxSpeed(actor))
                     libsumo.person.setSpeed(actor, 0.0)
                 else:
+                    self._held[actor] = (self.time + COLLISION_HOLD, -1.0)  # -1: SUMO's car-following
                     libsumo.vehicle.setSpeed(actor, 0.0)
 
     def _release_holds(self) -> None:
         import libsumo
 
-        for actor, until in list(self._held.items()):
+        for actor, (until, speed) in list(self._held.items()):
             if self.time < until:
                 continue
             del self._held[actor]
             info = self.sumo.actors.get(actor)
             if info is None:
                 continue
-            if info.is_person:
-                libsumo.person.setSpeed(actor, ACTOR_TYPES["pedestrian"].max_speed * 0.7)
-            else:
-                libsumo.vehicle.setSpeed(actor, -1.0)  # back to SUMO's own car-following
+            (libsumo.person if info.is_person else libsumo.vehicle).setSpeed(actor, speed)
