@@ -10,7 +10,7 @@ from typing import ClassVar
 import numpy as np
 import pytest
 
-from cmudrive.agents import Agent, Observation, Observations, PidAgent, RouteSetup
+from cmudrive.agents import Agent, AutopilotAgent, Observation, Observations, PidAgent, RouteSetup
 from cmudrive.bench import CavSpec, EvalConfig, LocalExecutor, RouteSpec, evaluate_route, run_evaluation
 from cmudrive.bench.records import STATUS_AGENT_CRASHED, STATUS_BLOCKED, STATUS_PERFECT
 from cmudrive.maps import load_map
@@ -133,3 +133,12 @@ def test_crash_isolation_and_resume(tmp_path: Path) -> None:
         on_result=lambda r: ran.append(r.route_id),
     )
     assert ran == ["bad"]  # crashed routes run again on resume
+
+
+def test_autopilot_drives_to_the_end_of_its_route() -> None:
+    """The privileged autopilot reaches its destination: it slows for the route's end, it does not stand
+    a look-ahead horizon short of it (which ended every CAV "Agent got blocked" at 60-80 % completion)."""
+    result = evaluate_route(ring_route(), AutopilotAgent, EvalConfig(background=EMPTY))
+    assert [c.status for c in result.cavs] == [STATUS_PERFECT] * 2
+    assert [c.route_completion for c in result.cavs] == [100.0, 100.0]
+    assert result.ticks < 1000  # 210-220 m at 0.9 x 90 km/h with a 3 m/s^2 arrival profile: 15-25 s

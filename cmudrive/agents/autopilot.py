@@ -1,9 +1,10 @@
 """A simple privileged lane-following autopilot for CAVs, vectorised over CAVs.
 
 It is what drives the CAVs in ``cmudrive sim demo`` and the simulator's behaviour tests: pure-pursuit
-steering on the CAV's dense route, a target speed that is the lowest of the lane's speed limit, a
-stopping profile for the nearest actor in the route corridor ahead, and one for a red or yellow light at
-the next junction entry on the route; a proportional speed controller turns it into throttle/brake.
+steering on the CAV's dense route, a target speed that is the lowest of the lane's speed limit, an
+arrival profile that brings the CAV to its route's last point at ``ARRIVAL_SPEED``, a stopping profile for
+the nearest actor in the route corridor ahead, and one for a red or yellow light at the next junction
+entry on the route; a proportional speed controller turns it into throttle/brake.
 It is not an expert (no prediction, no right-of-way reasoning beyond lights); issue-level agents build
 on the same controllers.
 """
@@ -31,6 +32,7 @@ COMFORT_DECEL = 3.0  # [m/s^2] deceleration used to plan stopping profiles
 SPEED_GAIN = 0.6  # throttle per m/s of speed error
 BRAKE_GAIN = 0.35  # brake per m/s of speed excess
 SPEED_LIMIT_FACTOR = 0.9  # cruise at this fraction of the speed limit
+ARRIVAL_SPEED = 4.0  # [m/s] speed at which a CAV reaches the last point of its route (it then stops)
 
 
 @dataclass
@@ -49,11 +51,15 @@ class LaneFollowingAutopilot:
         self._xy = np.zeros((n, self._pad, 2))
         self._lane = np.full((n, self._pad), -1, np.int32)
         self._speed = np.zeros((n, self._pad))
+        self._to_end = np.zeros((n, self._pad))  # [m] distance from each route point to the route's end
         for i, r in enumerate(self.routes):
             k = len(r)
             self._xy[i, :k], self._xy[i, k:] = r.xy, r.xy[-1]
             self._lane[i, :k], self._lane[i, k:] = r.lane, r.lane[-1]
-            self._speed[i, :k], self._speed[i, k:] = r.speed_limit, 0.0
+            # past the end the last limit goes on: the arrival profile below, not the padding, slows
+            # the CAV down (a padded 0 made every CAV stop a horizon short of its destination)
+            self._speed[i, :k], self._speed[i, k:] = r.speed_limit, r.speed_limit[-1]
+            self._to_end[i, :k] = r.distance[-1] - r.distance
 
     def controls(self, snap: Snapshot, cav_rows: np.ndarray, cav_index: np.ndarray) -> Controls:
         """Controls for the CAVs at snapshot rows ``cav_rows``, which are routes ``cav_index``."""
@@ -64,6 +70,8 @@ class LaneFollowingAutopilot:
         path = self._xy[cav_index[:, None], ahead]  # (n, H, 2)
         steer = self._pure_pursuit(pos, yaw, v, path)
         limit = SPEED_LIMIT_FACTOR * self._speed[cav_index[:, None], ahead].min(axis=1, initial=np.inf)
+        to_end = self._to_end[cav_index, self.progress[cav_index]]
+        limit = np.minimum(limit, np.sqrt(ARRIVAL_SPEED**2 + 2.0 * COMFORT_DECEL * to_end))
         limit = np.where(self._finished(cav_index), 0.0, limit)
         target = np.minimum(limit, self._obstacle_speed(snap, cav_rows, path))
         target = np.minimum(target, self._light_speed(snap, cav_index, ahead, pos))
