@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -93,6 +94,26 @@ def maps_build(
     try:
         for name in names or list(TOWNS):
             console.print(f"built {build_town(name, target)}")
+    except MapError as exc:
+        _fail(exc)
+
+
+@maps_app.command("build-carla")
+def maps_build_carla(
+    source: Annotated[Path, typer.Argument(help="folder with CARLA's Town01.xodr .. Town07.xodr")],
+    out_dir: Annotated[
+        Path | None, typer.Option("--out", help="folder (default: the package's assets)")
+    ] = None,
+) -> None:
+    """Re-import the committed CARLA towns (Town01 from SOURCE/with-signals/Town01.xodr when present)."""
+    from cmudrive.maps.importer import CARLA_TOWNS, carla_town_source, import_map
+    from cmudrive.maps.towns import assets_dir
+
+    target = out_dir or assets_dir()
+    try:
+        for town in CARLA_TOWNS:
+            report = import_map(carla_town_source(source, town), target / f"{town}.net.xml")
+            console.print(f"built {report.dst} ({report.tls} traffic lights, {report.tls_source})")
     except MapError as exc:
         _fail(exc)
 
@@ -247,6 +268,10 @@ def evaluate(
     record: Annotated[bool, typer.Option(help="save a replayable log per route in OUT/logs")] = False,
     tick_cap: Annotated[int, typer.Option(min=1, help="ticks per route at most (20 per second)")] = 4000,
     step_timeout: Annotated[float, typer.Option(help="seconds an agent may take per step")] = 10.0,
+    town_dir: Annotated[
+        list[Path] | None,
+        typer.Option(help="folder of <town>.net.xml networks, searched after the route file's own folder"),
+    ] = None,
 ) -> None:
     """Evaluate an agent on a route file; one JSON record per route as it finishes, merged results.json."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TaskID, TextColumn, TimeElapsedColumn
@@ -263,6 +288,8 @@ def evaluate(
         _fail(exc)
     for route_id, message in invalid:
         err_console.print(f"[yellow]skipping route {route_id}:[/] {message}")
+    extra_dirs = tuple(str(d.resolve()) for d in town_dir or ())
+    specs = [dataclasses.replace(s, town_dirs=s.town_dirs + extra_dirs) for s in specs]
     config = EvalConfig(
         tick_cap=tick_cap, step_timeout=step_timeout, record_dir=out / "logs" if record else None
     )

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from cmudrive.bench.criteria import CriteriaConfig, RouteCriteria
+from cmudrive.bench.criteria.collisions import CollisionMemory
 from cmudrive.bench.criteria.lanes import lane_state
 from cmudrive.bench.records import (
     STATUS_BLOCKED,
@@ -505,8 +506,8 @@ def test_yield_to_emergency_vehicle_is_charged_only_when_still_ahead_of_it(
     mini: RoadMap, east: Route
 ) -> None:
     scene = Scene(mini, [east, east])
-    scene.tick([(250.0, -1.6, 0.0, 5.0), (230.0, -1.6, 0.0, 5.0)])
-    ev_xy, ev_heading = (240.0, 1.0), 0.0  # heading east, between the two CAVs, on the other lane
+    scene.tick([(224.0, -1.6, 0.0, 5.0), (214.0, -1.6, 0.0, 5.0)])
+    ev_xy, ev_heading = (219.0, 1.0), 0.0  # heading east, between the two CAVs, on the other lane
     assert scene.criteria.record_yield_to_emergency_vehicle(0, ev_xy, ev_heading, actor="ambulance1")
     assert not scene.criteria.record_yield_to_emergency_vehicle(1, ev_xy, ev_heading)
     ahead, behind = scene.criteria.results()
@@ -533,3 +534,48 @@ def test_scenario_timeout_hook_records_its_penalty(mini: RoadMap, east: Route) -
     assert scene.result().infraction_score == pytest.approx(0.7)
     with pytest.raises(IndexError):
         scene.criteria.suspend_blocked(3, True)
+
+
+# ---- differences from upstream that were fixed (issue: Bench2Drive routes on the CARLA towns) -------
+
+
+def test_open_min_speed_checkpoint_is_dropped_below_95_percent(mini: RoadMap, east: Route) -> None:
+    """Upstream drops the checkpoint the CAV is still in unless it did more than 95 % of its route: a CAV
+    that drives 12 m (at the traffic's speed) and then stands 60 s keeps only its closed parts, 100 %."""
+    scene = Scene(mini, [east])
+    d = 0.0
+    while d < 12.0 or scene.step < 1300:
+        moving = d < 12.0
+        x, y, yaw = pose_at(east, d)
+        fast = Actor("bg", x + 20.0, y + 3.2, yaw=np.pi, speed=10.0 if moving else 5.0)
+        scene.tick([(x, y, yaw, 10.0 if moving else 0.0)], others=(fast,))
+        if scene.criteria.finished()[0]:
+            break
+        d += 0.5 if moving else 0.0
+    result = scene.result()
+    assert result.route_completion < 10.0
+    assert result.min_speed_checkpoints == pytest.approx([100.0])  # part 1 closed, part 2 open: dropped
+    assert result.infractions["min_speed_infractions"] == []
+
+
+def test_completion_looks_two_points_ahead(mini: RoadMap, east: Route) -> None:
+    """WINDOWS_SIZE = 2: a CAV that jumps 5 m in one tick only advances its completion by 2 points."""
+    assert CriteriaConfig().completion_window == 2
+    scene = Scene(mini, [east])
+    scene.tick([(*pose_at(east, 10.0), 5.0)])
+    before = scene.result().route_completion
+    scene.tick([(*pose_at(east, 15.5), 5.0)])
+    gained = (scene.result().route_completion - before) / 100.0 * east.length
+    assert gained == pytest.approx(2.0, abs=0.05)
+
+
+def test_collision_spot_is_forgotten_once_5_m_away() -> None:
+    """A second car hitting the CAV at the spot of its last counted collision is ignored while the CAV
+    stayed near it, and charged once the CAV had been more than 5 m away (upstream clears the spot)."""
+    spot, far = np.array([[10.0, 0.0]]), np.array([[16.0, 0.0]])
+    cav, fast = np.array([0]), np.array([5.0])
+    for went_away, charged in ((False, False), (True, True)):
+        memory = CollisionMemory(1, CriteriaConfig())
+        assert memory.count(cav, np.array(["bg1"]), spot, fast, time=1.0).tolist() == [True]
+        memory.forget_far(cav, far if went_away else spot + 1.0)
+        assert memory.count(cav, np.array(["bg2"]), spot, fast, time=9.0).tolist() == [charged]

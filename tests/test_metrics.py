@@ -326,3 +326,12 @@ def test_first_junction_completion_round_trips_and_defaults():
     del old["cavs"][0]["first_junction_completion"]  # records written before the field existed
     assert RouteResult.from_json(old).cavs[0].first_junction_completion is None
     assert math.isclose(again.driving_score, 100.0)
+
+
+def test_outside_lanes_per_km_is_the_distance_driven_outside():
+    """Upstream reports kilometres driven outside the route lanes per km, not events per km: a CAV that
+    drove 40 % of its 1 km route outside (factor 0.6) over 2 km driven gives 0.2 km per km."""
+    outside = cav(100.0, 0.6, events=("outside_route_lanes",))
+    outside.infractions["outside_route_lanes"][0] = event("outside_route_lanes", factor=0.6)
+    per_km = infractions_per_km([route([outside, cav(100.0)])])
+    assert per_km is not None and per_km["outside_route_lanes"] == pytest.approx(0.4 / 2.0)

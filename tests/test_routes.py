@@ -273,7 +273,9 @@ def test_leaderboard_import_with_user_towns(tmp_path: Path) -> None:
     )
     assert result.skipped == []
     by_id = {r.id: r for r in result.routes}
-    assert by_id["2"].town == "Town12" and by_id["3"].town == "nets/Town13.net.xml"
+    # a network file serves its town by name: the route keeps "Town13", and looks in nets/ first
+    assert by_id["2"].town == "Town12" and by_id["3"].town == "Town13"
+    assert by_id["3"].town_dirs == (str(Path("nets").resolve()),) and by_id["2"].town_dirs == ()
     assert by_id["2"].weather == "ClearNoon" and by_id["3"].weather == "ClearNight"  # sun at -40 deg
     assert by_id["2"].scenarios[0].params["start_actor_flow"] == {"x": "-1272.0", "y": "2771.5", "z": "361.3"}
     # extra CAVs need the map: the made-up Town12 has none, so that route is skipped with the reason

@@ -13,6 +13,7 @@ import pytest
 import sumolib
 
 from cmudrive.maps.errors import MapError, NetconvertError
+from cmudrive.maps.importer import CARLA_TOWNS
 from cmudrive.maps.netconvert import find_netconvert
 from cmudrive.maps.towns import TOWNS, assets_dir, build_town
 from cmudrive.maps.towns.build import netconvert_version
@@ -74,8 +75,11 @@ def test_catalogue_names_and_descriptions() -> None:
 
 
 def test_assets_hold_only_the_towns() -> None:
+    """Our procedural towns, and CARLA's Town01-07 imported from OpenDRIVE with their licence."""
     files = {p.name for p in assets_dir().iterdir()}
-    assert files - {"README.md"} == {f"{t}.net.xml" for t in TOWNS}
+    carla = {f"{t}.net.xml" for t in CARLA_TOWNS} | {"LICENSE.opendrive-test-files.txt"}
+    assert files - {"README.md"} - carla == {f"{t}.net.xml" for t in TOWNS}
+    assert carla <= files
     for town in TOWNS:
         assert _path(town).stat().st_size < MAX_FILE_SIZE
 

@@ -45,15 +45,17 @@ class ImportResult:
     skipped: list[tuple[str, str]] = field(default_factory=list)
 
 
-def _town_table(towns: Iterable[str] | None) -> dict[str, str]:
-    """Town name as route files spell it -> what ``RouteSpec.town`` stores (a name, or a network path)."""
-    table = {name: name for name in available_towns()}
+def _town_table(towns: Iterable[str] | None) -> dict[str, tuple[str, ...]]:
+    """Town name as route files spell it -> the folders to look it up in before the committed towns (a
+    network file ``nets/Town03.net.xml`` serves the routes of ``Town03``; they keep the name ``Town03``,
+    so the written file can be moved: evaluate it with the network beside it or ``--town-dir nets``)."""
+    table: dict[str, tuple[str, ...]] = {name: () for name in available_towns()}
     for town in towns or ():
         name = Path(town).name
-        if name.endswith(NET_SUFFIX):  # a network file: routes on town "Town03" use "path/Town03.net.xml"
-            table[name[: -len(NET_SUFFIX)]] = str(town)
+        if name.endswith(NET_SUFFIX):
+            table[name[: -len(NET_SUFFIX)]] = (str(Path(town).resolve().parent),)
         else:
-            table[str(town)] = str(town)
+            table[str(town)] = ()
     return table
 
 
@@ -113,10 +115,12 @@ def import_leaderboard_routes(
             scenarios = tuple(
                 scenario_from_xml(s, i) for i, s in enumerate(elem.findall("scenarios/scenario"))
             )
-            spec = RouteSpec(rid, table[town], _start_weather(elem), seed, (CavSpec(0, points),), scenarios)
+            spec = RouteSpec(
+                rid, town, _start_weather(elem), seed, (CavSpec(0, points),), scenarios, town_dirs=table[town]
+            )
             if extra_cavs:
                 if spec.town not in maps:
-                    maps[spec.town] = load_map(spec.town)
+                    maps[spec.town] = load_map(spec.town_path())
                 rng = np.random.default_rng([seed, zlib.crc32(rid.encode())])
                 spec = add_cavs(spec, 1 + extra_cavs, rng, road_map=maps[spec.town])
         except RouteSpecError as exc:

@@ -78,14 +78,16 @@ def evaluate_route(
     config = config or EvalConfig()
     started = time.perf_counter()
     try:
-        road_map = load_map(spec.town)
+        town_path = spec.town_path()
+        road_map = load_map(town_path)
     except MapError as exc:
-        raise RouteInputError(f"route {spec.id}: {exc}") from exc
+        raise RouteInputError(str(exc) if spec.id in str(exc) else f"route {spec.id}: {exc}") from exc
     routes = plan_cav_routes(spec, road_map)
     agent = make_agent()
     check_observations(agent)
     privileged = Observation.PRIVILEGED in type(agent).observations
-    with World(WorldConfig(town=spec.town, seed=spec.seed, weather=spec.weather), road_map=road_map) as world:
+    world_config = WorldConfig(town=str(town_path), seed=spec.seed, weather=spec.weather)
+    with World(world_config, road_map=road_map) as world:
         for route in routes:
             world.add_cav(route)
         world.background = BackgroundActivity(config.background)
@@ -130,12 +132,12 @@ def evaluate_route(
     return result
 
 
-JUNCTION_MARGIN = 8  # [route points] Bench2Drive counts a junction passed 8 points after its first point
+JUNCTION_MARGIN = 9  # [route points] Bench2Drive counts a junction passed 9 points after its first point
 
 
 def first_junction_completion(route: Route) -> float | None:
     """Route completion [%] at which the route has passed its first junction (Bench2Drive's Traffic_Signs
-    rule: the first in-junction point + 8 points), None when the route has no junction."""
+    rule: the first in-junction point + 9 points, its loop's last index), None without a junction."""
     hits = np.flatnonzero(route.in_junction)
     if len(hits) == 0:
         return None

@@ -398,15 +398,23 @@ def breakdown(
     return {str(k): _group_scores(groups[k]) for k in (*known, *rest)}  # str keys: as JSON writes them
 
 
+OUTSIDE_KEY = "outside_route_lanes"
+
+
 def infractions_per_km(routes: Sequence[RouteResult]) -> dict[str, float] | None:
     """Infraction events per key, over all CAVs, per km driven (route length x completion); None if no
-    distance was driven."""
-    km = math.fsum(c.route_length * c.route_completion / 100.0 for r in routes for c in r.cavs) / 1000.0
+    distance was driven. For ``outside_route_lanes`` the value is, as upstream, the kilometres driven
+    outside the route's lanes per km driven (its record's factor is 1 - the share outside)."""
+    driven = [(c, c.route_length * c.route_completion / 100.0) for r in routes for c in r.cavs]
+    km = math.fsum(m for _, m in driven) / 1000.0
     if km <= 0.0:
         return None
-    return {
-        k: sum(len(c.infractions.get(k, [])) for r in routes for c in r.cavs) / km for k in INFRACTION_KEYS
-    }
+    out = {k: sum(len(c.infractions.get(k, [])) for c, _ in driven) / km for k in INFRACTION_KEYS}
+    outside = math.fsum(
+        (1.0 - inf.factor) * metres for c, metres in driven for inf in c.infractions.get(OUTSIDE_KEY, [])
+    )
+    out[OUTSIDE_KEY] = outside / 1000.0 / km
+    return out
 
 
 def is_crashed(route: RouteResult) -> bool:

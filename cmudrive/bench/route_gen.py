@@ -23,6 +23,7 @@ import numpy as np
 
 from cmudrive.bench.routes import MAX_CAVS, CavSpec, RouteSpec, ScenarioSpec, write_routes
 from cmudrive.maps import LanePos, RoadMap, RoadOption, Route, RouteError, RoutePlanner, densify, load_map
+from cmudrive.maps.cache import resolve_map_path
 from cmudrive.maps.coords import map_to_carla
 from cmudrive.sim.weather import get_weather
 
@@ -164,7 +165,7 @@ def add_cavs(
         raise ValueError(f"route {spec.id!r}: n_total must be in {len(spec.cavs)}..{MAX_CAVS}, got {n_total}")
     if n_total == len(spec.cavs):
         return spec
-    road_map = road_map if road_map is not None else load_map(spec.town)
+    road_map = road_map if road_map is not None else load_map(spec.town_path())
     topo = _Topology(road_map)
     where = f"route {spec.id!r} on {road_map.name!r}"
     dense = spec.dense_routes(road_map)
@@ -223,7 +224,10 @@ def generate_routes(
         raise ValueError(f"num_cavs must be in 1..{MAX_CAVS}, got {num_cavs}")
     if num_routes < 0 or not 0.0 < length[0] <= length[1]:
         raise ValueError(f"need num_routes >= 0 and 0 < min length <= max length, got {num_routes}, {length}")
-    road_map = load_map(town)
+    path = resolve_map_path(town)
+    road_map = load_map(path)
+    # a network file keeps only its town's name in the route file (movable: see RouteSpec.town_dirs)
+    name, town_dirs = (road_map.name, (str(path.resolve().parent),)) if Path(town) == path else (town, ())
     topo = _Topology(road_map)
     out = []
     for i in range(num_routes):
@@ -235,7 +239,12 @@ def generate_routes(
             if plan is None:
                 continue
             spec = RouteSpec(
-                f"{road_map.name}_{i:03d}", town, weather, seed + i, (CavSpec(0, _carla_points(plan[0])),)
+                f"{road_map.name}_{i:03d}",
+                name,
+                weather,
+                seed + i,
+                (CavSpec(0, _carla_points(plan[0])),),
+                town_dirs=town_dirs,
             )
             try:
                 out.append(add_cavs(spec, num_cavs, rng, road_map, length))
@@ -269,7 +278,7 @@ def generate_route_set(
 def _summary(specs: Sequence[RouteSpec]) -> list[str]:
     lines = []
     for spec in specs:
-        m = load_map(spec.town)
+        m = load_map(spec.town_path())
         lengths = [densify(m, spec.map_waypoints(c.id)).length for c in spec.cavs]
         lines.append(
             f"{spec.id}: {spec.town}, {spec.weather}, seed {spec.seed}, {len(spec.cavs)} CAVs, "

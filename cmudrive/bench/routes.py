@@ -36,14 +36,15 @@ import re
 import tempfile
 import xml.etree.ElementTree as ET
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Literal, overload
 
 import numpy as np
 
 from cmudrive.bench.scenario_types import SCENARIO_TYPES
-from cmudrive.maps import RoadMap, Route, RouteError, densify
+from cmudrive.maps import MapError, RoadMap, Route, RouteError, densify
+from cmudrive.maps.cache import resolve_map_path
 from cmudrive.maps.coords import carla_to_map
 from cmudrive.sim.weather import WEATHERS
 
@@ -166,8 +167,9 @@ class ScenarioSpec:
 
 @dataclass(frozen=True)
 class RouteSpec:
-    """One route: town (a committed town name or a ``.net.xml`` path), weather preset, SUMO seed, CAVs
-    ``0..N-1`` in order (CAV 0 drives the scenario route) and scenarios."""
+    """One route: town (a town name, or a ``.net.xml`` path), weather preset, SUMO seed, CAVs ``0..N-1``
+    in order (CAV 0 drives the scenario route) and scenarios. A town name is looked up in ``town_dirs``
+    (the route file's folder, then ``--town-dir`` folders), then among the committed towns."""
 
     id: str
     town: str
@@ -175,6 +177,14 @@ class RouteSpec:
     seed: int
     cavs: tuple[CavSpec, ...]
     scenarios: tuple[ScenarioSpec, ...] = ()
+    town_dirs: tuple[str, ...] = field(default=(), compare=False)  # where a town name is looked up first
+
+    def town_path(self) -> Path:
+        """The network file of this route's town (MapError naming the route when there is none)."""
+        try:
+            return resolve_map_path(self.town, self.town_dirs)
+        except MapError as exc:
+            raise MapError(f"route {self.id}: {exc}") from None
 
     def __post_init__(self) -> None:
         if not isinstance(self.id, str) or not self.id:
@@ -395,7 +405,8 @@ def read_routes(
             if rid in seen:
                 raise RouteSpecError("duplicate route id")
             seen.add(rid)
-            routes.append(_route_from_xml(elem, min_cavs))
+            spec = _route_from_xml(elem, min_cavs)
+            routes.append(replace(spec, town_dirs=(str(Path(path).resolve().parent),)))
         except RouteSpecError as exc:
             err = exc.within(path=str(path), route_id=rid)
             if strict:

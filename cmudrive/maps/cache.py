@@ -15,6 +15,7 @@ import hashlib
 import os
 import tempfile
 import warnings
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -42,23 +43,27 @@ def cache_dir() -> Path:
     return Path(root) / "maps"
 
 
-def resolve_map_path(town_or_path: str | Path) -> Path:
-    """A committed town name (``"grid"``) or a path to a ``.net.xml`` file."""
+def resolve_map_path(town_or_path: str | Path, search: Sequence[str | Path] = ()) -> Path:
+    """A path to a ``.net.xml`` file, or a town name (``"Town03"``): ``<name>.net.xml`` in the first
+    folder of ``search`` that has it (a route file's own folder, ``--town-dir``), else a committed town."""
     candidate = Path(town_or_path)
     if candidate.suffix in (".xml", ".gz") or candidate.exists() or os.sep in str(town_or_path):
         if not candidate.is_file():
             raise MapError(f"map file not found: {candidate}")
         return candidate
-    path = assets_dir() / f"{town_or_path}{NET_SUFFIX}"
-    if not path.is_file():
-        towns = ", ".join(available_towns()) or "(none built)"
-        raise MapError(f"unknown town {str(town_or_path)!r}; available towns: {towns}")
-    return path
+    for folder in [*map(Path, search), assets_dir()]:
+        path = folder / f"{town_or_path}{NET_SUFFIX}"
+        if path.is_file():
+            return path
+    towns = ", ".join(available_towns()) or "(none built)"
+    where = f" (searched {', '.join(str(s) for s in search)} and the committed towns)" if search else ""
+    raise MapError(f"unknown town {str(town_or_path)!r}{where}; available towns: {towns}")
 
 
-def load_map(town_or_path: str | Path, use_cache: bool = True) -> RoadMap:
-    """Load a town or network file as a :class:`RoadMap`, from the cache when possible."""
-    path = resolve_map_path(town_or_path)
+def load_map(town_or_path: str | Path, use_cache: bool = True, search: Sequence[str | Path] = ()) -> RoadMap:
+    """Load a town or network file as a :class:`RoadMap`, from the cache when possible (``search``: see
+    :func:`resolve_map_path`)."""
+    path = resolve_map_path(town_or_path, search)
     name = path.name[: -len(NET_SUFFIX)] if path.name.endswith(NET_SUFFIX) else path.stem
     if not use_cache:
         return read_sumo_net(path, name=name)

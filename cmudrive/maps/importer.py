@@ -12,8 +12,10 @@ import (e.g. a CARLA town) takes two netconvert passes:
 2. We read the .xodr ourselves for what netconvert leaves out and let netconvert re-read its network
    with a node/edge patch: stop signs (signal type 206) make ``priority_stop``/``allway_stop``
    junctions, road speed limits (``<road><type><speed>``) become lane speeds, traffic lights are
-   guessed where the file has no signals (:class:`ImportOptions`), and every junction records its
-   OpenDRIVE junction id.
+   guessed where the file has no signals (:class:`ImportOptions`), every junction records its
+   OpenDRIVE junction id, and dead-end stubs (degenerate roads of a few micrometres that netconvert turns
+   into a 0.1 m edge ending nowhere, :class:`~cmudrive.maps.opendrive.DeadEndStub`) are removed with
+   their connections sent on to the road that continues.
 
 An OpenStreetMap import is one pass (UTM projection, OSM signals, sidewalks and crossings). Frames are
 described in :mod:`cmudrive.maps.coords`, options and limitations in ``docs/opendrive_import.md``.
@@ -22,7 +24,6 @@ described in :mod:`cmudrive.maps.coords`, options and limitations in ``docs/open
 
 from __future__ import annotations
 
-import os
 import re
 import shutil
 import tempfile
@@ -35,9 +36,11 @@ from pathlib import Path
 from typing import Literal
 
 from cmudrive.maps.errors import MapError
-from cmudrive.maps.netconvert import find_netconvert, run_netconvert
+from cmudrive.maps.loader import file_sha256
+from cmudrive.maps.netconvert import find_netconvert, run_netconvert, write_with_fixed_header
 from cmudrive.maps.opendrive import (
     Xodr,
+    dead_end_stubs,
     edges_by_road,
     guess_tls,
     read_net,
@@ -45,6 +48,7 @@ from cmudrive.maps.opendrive import (
     section_of,
     sign_approaches,
     write_patches,
+    write_stub_connections,
 )
 
 SourceKind = Literal["opendrive", "osm"]
@@ -142,6 +146,18 @@ class OpenDriveIdMap:
 # the import
 
 
+CARLA_TOWNS = tuple(f"Town0{k}" for k in range(1, 8))  # CARLA's towns committed as imported networks
+
+
+def carla_town_source(folder: Path, town: str) -> Path:
+    """The .xodr of a CARLA town in ``folder``: ``with-signals/<town>.xodr`` (the RoadRunner export with its
+    real light signals, which the leaderboard's coordinates use) when present, else ``<town>.xodr``."""
+    for candidate in (folder / "with-signals" / f"{town}.xodr", folder / f"{town}.xodr"):
+        if candidate.is_file():
+            return candidate
+    raise MapError(f"no {town}.xodr in {folder} (nor in {folder / 'with-signals'})")
+
+
 def import_map(src: Path | str, dst: Path | str, options: ImportOptions | None = None) -> ImportReport:
     """Convert the OpenDRIVE or OpenStreetMap file ``src`` into the SUMO network ``dst``.
 
@@ -168,7 +184,15 @@ def import_map(src: Path | str, dst: Path | str, options: ImportOptions | None =
         if not net.edges:
             raise MapError(f"{src} produced a network without roads")
         warnings = summarise_warnings(line for log in logs for line in _lines(log))
-        os.replace(result, dst)
+        write_with_fixed_header(
+            result,
+            dst,
+            lambda tool: (
+                f"{src.name} (sha256 {file_sha256(src)[:16]}) imported by cmudrive.maps.importer "
+                f"with {tool}; rebuild: cmudrive maps import {src.name} -o {dst.name}"
+            ),
+            str(src),
+        )
     except BaseException:
         shutil.rmtree(work, ignore_errors=True)
         if created_parent and not any(dst.parent.iterdir()):
@@ -241,8 +265,9 @@ def _import_opendrive(
     stops = sign_approaches(xodr, net, STOP_SIGN)
     signed = set(stops) | set(sign_approaches(xodr, net, YIELD_SIGN))
     guessed = guess_tls(xodr, net, signed) if policy == "guess" else []
+    stubs = dead_end_stubs(first)
     nodes, edges = work / "patch.nod.xml", work / "patch.edg.xml"
-    write_patches(nodes, edges, xodr, net, stops, options.road_speeds)
+    write_patches(nodes, edges, xodr, net, stops, options.road_speeds, frozenset(s.stub for s in stubs))
     args = [
         "--sumo-net-file", str(first), "--node-files", str(nodes), "--edge-files", str(edges),
         "--offset.disable-normalization", "--output.original-names",
@@ -250,6 +275,11 @@ def _import_opendrive(
     ]  # fmt: skip
     if guessed:
         args += ["--tls.set", ",".join(guessed)]
+    if stubs:  # degenerate roads: drive on into the sibling road, as CARLA does
+        connections = work / "stubs.con.xml"
+        write_stub_connections(connections, stubs)
+        args += ["--connection-files", str(connections)]
+        args += ["--remove-edges.explicit", ",".join(s.stub for s in stubs)]
     run_netconvert(args, dst, source=str(src))
     return ("guessed" if guessed else "opendrive" if policy != "none" else "none"), logs
 

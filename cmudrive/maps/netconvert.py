@@ -9,10 +9,11 @@ failed conversion never leaves a half-written network behind.
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import subprocess
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from cmudrive.maps.errors import NetconvertError
@@ -60,8 +61,36 @@ def run_netconvert(args: Sequence[str], output: Path, *, source: str, timeout_s:
         if proc.returncode != 0 or not tmp.exists() or tmp.stat().st_size == 0:
             tail = "\n".join((proc.stderr or proc.stdout).strip().splitlines()[-15:])
             raise NetconvertError(f"netconvert failed on {source} (exit {proc.returncode}):\n{tail}")
+        umask = os.umask(0)
+        os.umask(umask)
+        tmp.chmod(0o666 & ~umask)  # mkstemp's 0600 would make the network unreadable to other users
         os.replace(tmp, output)
     finally:
         if tmp.exists():
             tmp.unlink()
     return output
+
+
+_HEADER = re.compile(r"<!-- generated on .*? by (?P<tool>Eclipse SUMO netconvert [^\n]*?)\n.*?-->\n", re.S)
+
+
+def write_with_fixed_header(built: Path, path: Path, describe: Callable[[str], str], source: str) -> None:
+    """Copy the network ``built`` to ``path`` (atomically, mode 0644) with netconvert's header comment
+    (build time, temporary input paths) replaced by ``describe(tool)``, ``tool`` being netconvert's name and
+    version: the same inputs and netconvert version then give a byte-identical file."""
+    text = built.read_text(encoding="utf-8")
+    m = _HEADER.search(text, 0, 20000)
+    if m is None:
+        raise NetconvertError(f"{source}: unexpected netconvert header in {built}")
+    body = describe(m.group("tool")).replace("--", "-")  # "--" may not appear inside an XML comment
+    text = text[: m.start()] + f"<!-- {body} -->\n" + text[m.end() :]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as fh:
+            fh.write(text)
+        os.chmod(tmp, 0o644)  # a plain data file (mkstemp makes it private)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)

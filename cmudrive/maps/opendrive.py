@@ -260,9 +260,10 @@ def guess_tls(xodr: Xodr, net: PlainNet, skip: set[str]) -> list[str]:
 
 def write_patches(
     nodes_path: Path, edges_path: Path, xodr: Xodr, net: PlainNet, stops: dict[str, dict[str, list[str]]],
-    road_speeds: bool,
+    road_speeds: bool, removed: frozenset[str] = frozenset(),
 ) -> None:  # fmt: skip
-    """Node patch: OpenDRIVE junction ids, stop junctions. Edge patch: minor stop approaches, speeds."""
+    """Node patch: OpenDRIVE junction ids, stop junctions. Edge patch: minor stop approaches, speeds
+    (never for the ``removed`` edges: a patch entry would make netconvert define them anew)."""
     nodes, edges = ET.Element("nodes"), ET.Element("edges")
     node_el: dict[str, ET.Element] = {}
     edge_el: dict[str, ET.Element] = {}
@@ -273,6 +274,8 @@ def write_patches(
         return node_el[junction]
 
     def edge(edge_id: str) -> ET.Element:
+        if edge_id in removed:
+            return ET.Element("edge")  # written nowhere
         if edge_id not in edge_el:
             edge_el[edge_id] = ET.SubElement(edges, "edge", id=edge_id)
         return edge_el[edge_id]
@@ -299,3 +302,59 @@ def write_patches(
                 ET.SubElement(edge(e.id), "lane", index=str(lane.index), speed=f"{road.speed:.2f}")
     ET.ElementTree(nodes).write(nodes_path, encoding="UTF-8", xml_declaration=True)
     ET.ElementTree(edges).write(edges_path, encoding="UTF-8", xml_declaration=True)
+
+
+# --------------------------------------------------------------------------------------------------
+# degenerate roads
+
+STUB_LENGTH = 1.0  # [m] an edge shorter than this that ends in a dead end is a candidate stub
+
+
+@dataclass(frozen=True)
+class DeadEndStub:
+    """A sub-metre edge ending in a dead end beside a sibling edge with the same lanes that leaves the same
+    junction: netconvert's rendering of a degenerate OpenDRIVE road (CARLA's Town06 road 54 is 0.00002 m
+    long). SUMO vehicles routed onto the stub are stuck; CARLA drives on into the sibling's road."""
+
+    stub: str
+    sibling: str
+    into: tuple[tuple[str, int, int], ...]  # connections into the stub: (from edge, from lane, to lane)
+
+
+def dead_end_stubs(path: Path) -> list[DeadEndStub]:
+    """The dead-end stubs of the network at ``path`` (see :class:`DeadEndStub`), sorted by id."""
+    root = ET.parse(path).getroot()
+    dead_ends = {j.attrib["id"] for j in root.iterfind("junction") if j.get("type") == "dead_end"}
+    edges = {e.attrib["id"]: e for e in root.iterfind("edge") if not e.get("function")}
+    stubs = []
+    for eid, el in sorted(edges.items()):
+        lanes = el.findall("lane")
+        if el.get("to") not in dead_ends or max(float(ln.get("length", "0")) for ln in lanes) >= STUB_LENGTH:
+            continue
+        types = [ln.get("type", "") for ln in lanes]
+        siblings = [
+            oid for oid, other in sorted(edges.items())
+            if oid != eid and other.get("from") == el.get("from")
+            and [ln.get("type", "") for ln in other.findall("lane")] == types
+        ]  # fmt: skip
+        into = tuple(
+            (c.attrib["from"], int(c.attrib["fromLane"]), int(c.attrib["toLane"]))
+            for c in root.iterfind("connection")
+            if c.get("to") == eid and not c.attrib["from"].startswith(":")
+        )
+        if len(siblings) == 1 and into:
+            stubs.append(DeadEndStub(eid, siblings[0], into))
+    return stubs
+
+
+def write_stub_connections(path: Path, stubs: list[DeadEndStub]) -> None:
+    """A connection file that sends every connection into a stub to its sibling instead."""
+    root = ET.Element("connections")
+    for stub in stubs:
+        for src, from_lane, to_lane in stub.into:
+            ET.SubElement(
+                root, "connection", attrib={
+                    "from": src, "to": stub.sibling, "fromLane": str(from_lane), "toLane": str(to_lane)
+                },
+            )  # fmt: skip
+    ET.ElementTree(root).write(path, encoding="UTF-8", xml_declaration=True)

@@ -30,6 +30,10 @@ from cmudrive.maps.model import NO_INDEX, RoadMap, TurnDir
 LANE_CHANGE_LENGTH = 20.0  # [m] longitudinal distance over which a planned lane change happens
 LANE_CHANGE_MIN_ROOM = 6.0  # [m] a change needs at least this much lane left
 LANE_CHANGE_PENALTY = 10.0  # [m] extra cost of a lane change, so routes prefer to stay in lane
+# where the room is short (several changes between two close route points, as on CARLA's Town06
+# highway), a change may take only this long, at this extra cost on top of the penalty
+SHORT_CHANGE_LENGTH = 8.0  # [m]
+SHORT_CHANGE_EXTRA = 15.0  # [m] more than the time saved, so a full-length change is taken when it fits
 MAX_SNAP_DISTANCE = 10.0  # [m] a start/goal point farther than this from any driving lane is an error
 FINE_STEP = 0.25  # [m] internal sampling before the route is resampled to its spacing
 
@@ -77,6 +81,10 @@ class Route:
     in_junction: np.ndarray  # (n,) bool
     option: np.ndarray  # (n,) int8 RoadOption
     distance: np.ndarray  # (n,) float64 distance along the route from its start [m]
+    # (k,) int32 every lane the plan traverses, in order, without repeats: unlike ``lane`` it keeps lanes
+    # shorter than the point spacing (imported towns have sub-metre edges between two junctions), so it
+    # is what a SUMO route of the same path must be built from
+    path: np.ndarray
 
     def __len__(self) -> int:
         return int(self.xy.shape[0])
@@ -158,7 +166,7 @@ class RoutePlanner:
         # heap entries: (cost, tiebreak, label id); labels: (lane, s_in, parent label, piece)
         labels: list[tuple[int, float, int, _Piece | None]] = [(start.lane, start.s, -1, None)]
         heap: list[tuple[float, int, int]] = [(0.0, 0, 0)]
-        done: set[tuple[int, bool]] = set()
+        done: set[tuple[int, bool, bool]] = set()  # (lane, entered mid-lane, by a shortened change)
         goal_label = -1
         counter = 1
         while heap:
@@ -167,7 +175,11 @@ class RoutePlanner:
             if lane == -2:  # the goal pseudo-label
                 goal_label = lid
                 break
-            key = (lane, s_in > 0.0)
+            piece_in = labels[lid][3]
+            short_in = (
+                piece_in is not None and piece_in.src >= 0 and piece_in.s1 - piece_in.s0 < LANE_CHANGE_LENGTH
+            )
+            key = (lane, s_in > 0.0, short_in)
             if key in done and lid != 0:
                 continue
             if lid != 0:
@@ -179,17 +191,22 @@ class RoutePlanner:
             rest = length[lane] - s_in
             follow = _Piece(lane, s_in, float(length[lane]), RoadOption(int(self._lane_option[lane])))
             for nxt in m.successors(lane).tolist():
-                if self._driving[nxt] and (nxt, False) not in done:
+                if self._driving[nxt] and (nxt, False, False) not in done:
                     pushes.append((cost + rest, (nxt, 0.0, lid, follow)))
             if not m.lane_internal[lane] and rest >= LANE_CHANGE_MIN_ROOM:
-                change = min(LANE_CHANGE_LENGTH, rest - 1.0)
+                full = min(LANE_CHANGE_LENGTH, rest - 1.0)
+                changes = [(full, self.penalty)]
+                if full > SHORT_CHANGE_LENGTH:
+                    changes.append((SHORT_CHANGE_LENGTH, self.penalty + SHORT_CHANGE_EXTRA))
                 for nxt, opt in (
                     (m.lane_left[lane], RoadOption.CHANGELANELEFT),
                     (m.lane_right[lane], RoadOption.CHANGELANERIGHT),
                 ):
-                    if nxt >= 0 and self._driving[nxt] and (int(nxt), True) not in done:
-                        piece = _Piece(int(nxt), s_in, s_in + change, opt, src=lane)
-                        pushes.append((cost + change + self.penalty, (int(nxt), s_in + change, lid, piece)))
+                    for change, extra in changes:
+                        state = (int(nxt), True, change < LANE_CHANGE_LENGTH)
+                        if nxt >= 0 and self._driving[nxt] and state not in done:
+                            piece = _Piece(int(nxt), s_in, s_in + change, opt, src=lane)
+                            pushes.append((cost + change + extra, (int(nxt), s_in + change, lid, piece)))
             for new_cost, label in pushes:
                 labels.append(label)
                 heapq.heappush(heap, (new_cost, counter, len(labels) - 1))
@@ -257,7 +274,13 @@ class RoutePlanner:
             in_junction=m.lane_internal[out_lane],
             option=opt[src],
             distance=out_d,
+            path=_lane_path(pieces),
         )
+
+
+def _lane_path(pieces: list[_Piece]) -> np.ndarray:
+    lanes = [lane for p in pieces for lane in ((p.src, p.lane) if p.src >= 0 else (p.lane,))]
+    return np.array([lane for i, lane in enumerate(lanes) if i == 0 or lane != lanes[i - 1]], np.int32)
 
 
 def _path_heading(xy: np.ndarray, fallback: float) -> np.ndarray:

@@ -155,7 +155,8 @@ class World:
             self._cav_in_sumo.discard(cav_id)
 
     def _route_edges(self, route: Route) -> list[str]:
-        names = self.map.edge_ids[self.map.lane_edge[route.lane]]
+        """The SUMO edges of a route, from its planned lane path (its 1 m points can skip short edges)."""
+        names = self.map.edge_ids[self.map.lane_edge[route.path]]
         edges: list[str] = []
         for name in names.tolist():
             if not name.startswith(":") and (not edges or edges[-1] != name):

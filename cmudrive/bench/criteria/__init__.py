@@ -98,7 +98,7 @@ Route timeout        route_timeout; Failed - Agent timed out. Route  The speed l
                      speed limit there).
 
 Tick cap             Failed - TickRuntime. The evaluator calls       None (Bench2Drive's cap).
-                     end_route after CriteriaConfig.tick_cap (4000)
+                     end_route after EvalConfig.tick_cap (4000)
                      ticks; every running CAV gets the status.
 
 Minimum speed        min_speed_infractions (factor 1, recorded       'Surrounding traffic' is background

@@ -54,6 +54,13 @@ class CollisionMemory:
         self._last_time: list[dict[str, float]] = [{} for _ in range(num_cavs)]  # other id -> time [s]
         self._last_xy = np.full((num_cavs, 2), np.nan)  # [m] CAV centre at its last counted collision
 
+    def forget_far(self, cav: np.ndarray, xy: np.ndarray) -> None:
+        """Forget where CAVs ``cav`` (m,), now at ``xy`` (m, 2) [m], had their last counted collision once
+        they are farther than ``collision_min_distance`` from it (upstream clears it the same way), so a
+        CAV coming back to that spot later is charged again."""
+        away = np.hypot(*(xy - self._last_xy[cav]).T) > self.config.collision_min_distance  # NaN: False
+        self._last_xy[cav[away]] = np.nan
+
     def count(
         self, cav: np.ndarray, other_id: np.ndarray, cav_xy: np.ndarray, cav_speed: np.ndarray, time: float
     ) -> np.ndarray:

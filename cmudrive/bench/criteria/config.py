@@ -10,7 +10,7 @@ class CriteriaConfig:
     """Every threshold the criteria use, with its unit. Unknown keys are rejected by the constructor."""
 
     # route completion
-    completion_window: int = 3  # route points looked at beyond the current one per tick
+    completion_window: int = 2  # route points looked at beyond the current one per tick (WINDOWS_SIZE)
     completion_threshold: float = 99.0  # [%] above this and near the last point, completion is set to 100
     completion_distance: float = 10.0  # [m] "near the last point"
     # route deviation
@@ -26,7 +26,6 @@ class CriteriaConfig:
     # timeouts
     route_timeout_base: float = 300.0  # [s] route time budget before any progress
     route_timeout_speed_fraction: float = 0.1  # each metre advanced adds 1 / (this * speed limit) seconds
-    tick_cap: int = 4000  # [ticks] Bench2Drive's hard cap per route (the evaluator enforces it)
     # collisions
     collision_min_speed: float = 0.1  # [m/s] contacts while the CAV is slower than this are ignored
     collision_same_actor_time: float = 5.0  # [s] the same other actor counts once within this time

@@ -107,6 +107,7 @@ class RouteCriteria:
         self._xy[cav] = xy
         self._ticks[cav] += 1
 
+        self._collisions.forget_far(cav, xy)
         self._count_collisions(snap, collisions, rows, cav)
         nearest, centre_lane, tail_lane = self._lanes_under(xy, yaw, forward, half)
         self._check_signals(cav, xy, forward, half, speed, centre_lane, tail_lane, snap.tls_state)
@@ -334,7 +335,7 @@ class RouteCriteria:
 
     def _min_speed_infractions(self, i: int) -> tuple[list[float], list[Infraction]]:
         values, records = [], []
-        for part, pct in self._min_speed.checkpoints(i):
+        for part, pct in self._min_speed.checkpoints(i, self._route_completion(i)):
             values.append(pct)
             if pct < 100.0:
                 tick, x, y = self._min_speed.where[i, part]

@@ -4,7 +4,10 @@ The route is cut into ``min_speed_checkpoints`` parts of equal length; a CAV is 
 route progress. Each tick in which background vehicles (SUMO traffic, not pedestrians, props or scenario
 actors) are within ``min_speed_radius`` of the CAV adds the CAV's speed to one sum and the mean speed of
 those vehicles to another; a part's value is ``100 * CAV sum / traffic sum`` [%], or 100 when it had no
-such tick (or the traffic stood still throughout). Parts the CAV never reached have no value.
+such tick (or the traffic stood still throughout). Parts the CAV never reached have no value, and
+neither has the part it is still in (the open one) unless it has done more than
+``OPEN_CHECKPOINT_COMPLETION`` of its route, as upstream, so standing at the end of a stunted run does not
+count as driving slowly.
 """
 
 from __future__ import annotations
@@ -14,6 +17,7 @@ import numpy as np
 from cmudrive.bench.criteria.config import CriteriaConfig
 from cmudrive.sim.snapshot import ActorKind, Role, Snapshot
 
+OPEN_CHECKPOINT_COMPLETION = 95.0  # [%] route completion above which the open part counts too
 _IS_VEHICLE = np.array([k not in (ActorKind.PEDESTRIAN, ActorKind.PROP) for k in ActorKind])  # by kind
 
 
@@ -60,10 +64,14 @@ class MinSpeedMonitor:
         self.cav_sum[cav[has], part[has]] += np.abs(speed[has])
         self.traffic_sum[cav[has], part[has]] += mean
 
-    def checkpoints(self, cav: int) -> list[tuple[int, float]]:
-        """(part, value [%]) of every part the CAV reached, in route order."""
+    def checkpoints(self, cav: int, completion: float) -> list[tuple[int, float]]:
+        """(part, value [%]) of every part the CAV reached, in route order; the part it is in last (still
+        open) only when its route ``completion`` [%] is above ``OPEN_CHECKPOINT_COMPLETION``."""
         out = []
-        for c in np.flatnonzero(self.ticks[cav] > 0).tolist():
+        reached = np.flatnonzero(self.ticks[cav] > 0).tolist()
+        if reached and completion <= OPEN_CHECKPOINT_COMPLETION:
+            reached = reached[:-1]
+        for c in reached:
             traffic = float(self.traffic_sum[cav, c])
             out.append((c, 100.0 * float(self.cav_sum[cav, c]) / traffic if traffic > 0.0 else 100.0))
         return out

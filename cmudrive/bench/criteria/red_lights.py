@@ -50,11 +50,10 @@ class RedLightCheck:
         ``tail_lane`` (m,) lane under the rear segment's far end (-1: none), ``route_index`` (m,) current
         route points, ``tls_state`` the snapshot's light strings."""
         cfg, stops = self.config, self.stops
-        charged = self._charged[cav]
-        away = (charged >= 0) & (
-            np.linalg.norm(xy - stops.mid[np.maximum(charged, 0)], axis=1) > cfg.red_light_rearm_distance
-        )
-        self._charged[cav[away]] = NO_INDEX
+        held = np.flatnonzero(self._charged[cav] >= 0)  # CAVs charged in their current passage
+        if len(held):  # (a map without light stop lines never gets here: nothing is ever charged)
+            gone = np.linalg.norm(xy[held] - stops.mid[self._charged[cav[held]]], axis=1)
+            self._charged[cav[held[gone > cfg.red_light_rearm_distance]]] = NO_INDEX
         k = stops.at(tail_lane, stops.is_light)
         sel = np.flatnonzero((k >= 0) & (k != self._charged[cav]))
         if len(sel) == 0:

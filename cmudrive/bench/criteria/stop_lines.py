@@ -50,7 +50,9 @@ class StopLineTable:
         """(m,) stop line at the end of each lane (-1 for none, or for lane -1) among the lines where
         ``of_kind`` (``is_light`` or ``is_sign``) holds."""
         k = np.where(lane >= 0, self.of_lane[lane], NO_INDEX)
-        return np.where(of_kind[k], k, NO_INDEX)
+        has = k >= 0
+        has[has] = of_kind[k[has]]  # (a map may have no stop line at all: of_kind is then empty)
+        return np.where(has, k, NO_INDEX)
 
     def frame(self, k: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(along, across) [m] of points ``xy`` (m, 2) relative to the centres of lines ``k`` (m,): along

@@ -7,7 +7,6 @@ so the same seed and netconvert version give a byte-identical file.
 
 from __future__ import annotations
 
-import os
 import re
 import tempfile
 from dataclasses import replace
@@ -16,8 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from cmudrive.maps.cache import assets_dir as assets_dir  # re-exported by cmudrive.maps.towns
-from cmudrive.maps.errors import MapError, NetconvertError
-from cmudrive.maps.netconvert import run_netconvert
+from cmudrive.maps.errors import MapError
+from cmudrive.maps.netconvert import run_netconvert, write_with_fixed_header
 from cmudrive.maps.towns.catalog import TOWNS, TownSpec
 from cmudrive.maps.towns.plain import read_connections, write_plain
 
@@ -34,8 +33,6 @@ NETCONVERT_OPTIONS: tuple[str, ...] = (
     "--junctions.internal-link-detail", "10",  # points per turning lane inside a junction
     "--junctions.limit-turn-speed", "5.5",  # [m/s^2] lateral acceleration on turns
 )  # fmt: skip
-
-_HEADER = re.compile(r"<!-- generated on .*? by (?P<tool>Eclipse SUMO netconvert [^\n]*?)\n.*?-->\n", re.S)
 
 
 def town_spec(name: str) -> TownSpec:
@@ -72,30 +69,14 @@ def build_town(name: str, out_dir: Path, seed: int | None = None) -> Path:
         built = run_netconvert(
             [*final.netconvert_args(), *NETCONVERT_OPTIONS], Path(tmp) / "final.net.xml", source=source
         )
-        _write_with_fixed_header(built, output, spec, seed)
+        write_with_fixed_header(
+            built,
+            output,
+            lambda tool: (
+                f"cmudrive procedural town {spec.name!r}, seed {seed}: {spec.description}\n"
+                f"     built from plain XML by {tool} with cmudrive.maps.towns.build.NETCONVERT_OPTIONS\n"
+                f"     rebuild: python -m cmudrive.maps.towns {spec.name}"
+            ),
+            source,
+        )
     return output
-
-
-def _write_with_fixed_header(built: Path, path: Path, spec: TownSpec, seed: int) -> None:
-    """Copy ``built`` to ``path`` (atomically) with netconvert's header comment replaced by ours."""
-    text = built.read_text(encoding="utf-8")
-    m = _HEADER.search(text, 0, 20000)
-    if m is None:
-        raise NetconvertError(f"town {spec.name!r}: unexpected netconvert header in {built}")
-    body = (
-        f"cmudrive procedural town {spec.name!r}, seed {seed}: {spec.description}\n"
-        f"     built from plain XML by {m.group('tool')} with cmudrive.maps.towns.build.NETCONVERT_OPTIONS\n"
-        f"     rebuild: python -m cmudrive.maps.towns {spec.name}"
-    ).replace("--", "-")  # "--" may not appear inside an XML comment
-    header = f"<!-- {body} -->\n"
-    text = text[: m.start()] + header + text[m.end() :]
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as fh:
-            fh.write(text)
-        os.chmod(tmp, 0o644)  # a plain data file (mkstemp makes it private)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
