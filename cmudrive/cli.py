@@ -38,7 +38,10 @@ def _town_descriptions() -> dict[str, str]:
         from cmudrive.maps.towns import TOWNS
     except ImportError:
         return {}
-    return {name: spec.description for name, spec in TOWNS.items()}
+    from cmudrive.maps.importer import CARLA_TOWNS
+
+    carla = {town: f"CARLA's {town}, imported from OpenDRIVE" for town in CARLA_TOWNS}
+    return carla | {name: spec.description.split(":")[0] for name, spec in TOWNS.items()}
 
 
 @maps_app.command("list")
