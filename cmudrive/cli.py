@@ -218,6 +218,37 @@ def routes_generate(ctx: typer.Context) -> None:
     raise typer.Exit(code=code)
 
 
+@routes_app.command("check")
+def routes_check(
+    source: Annotated[str, typer.Argument(help="route file, or the name of a committed route set")],
+    town_dir: Annotated[
+        list[Path] | None, typer.Option(help="folder of <town>.net.xml networks (as for eval)")
+    ] = None,
+) -> None:
+    """Validate a route file without running it: reading, towns, planning, bounds, trigger points."""
+    from rich.markup import escape
+
+    from cmudrive.bench.route_check import check_route_file
+
+    try:
+        checks = check_route_file(_routes_path(source), [str(d.resolve()) for d in town_dir or ()])
+    except (OSError, ValueError) as exc:
+        _fail(exc)
+    if not checks:
+        _fail(ValueError(f"{source}: no route in the file"))
+    bad = 0
+    for c in checks:
+        if c.problem is None:
+            lengths = ", ".join(f"{v:.0f}" for v in c.lengths)
+            console.print(f"[green]ok[/]    {escape(c.route_id)}: {c.num_cavs} CAVs, {lengths} m")
+        else:
+            bad += 1
+            console.print(f"[red]error[/] {escape(c.route_id)}: {escape(c.problem)}", highlight=False)
+    console.print(f"{len(checks) - bad} of {len(checks)} routes can run")
+    if bad:
+        raise typer.Exit(code=1)
+
+
 @routes_app.command("import")
 def routes_import(
     source: Annotated[Path, typer.Argument(help="Bench2Drive / Leaderboard-2.0 route file")],
@@ -270,13 +301,20 @@ def evaluate(
     ray_address: Annotated[str | None, typer.Option(help="address of an existing Ray cluster")] = None,
     record: Annotated[bool, typer.Option(help="save a replayable log per route in OUT/logs")] = False,
     tick_cap: Annotated[int, typer.Option(min=1, help="ticks per route at most (20 per second)")] = 4000,
-    step_timeout: Annotated[float, typer.Option(help="seconds an agent may take per step")] = 10.0,
+    step_timeout: Annotated[
+        float, typer.Option(help="seconds an agent may take per step (> 0); a hung worker is killed")
+    ] = 10.0,
+    max_memory: Annotated[
+        float | None,
+        typer.Option(help="GiB of address space per route's worker (exceeding it: Agent crashed)"),
+    ] = None,
     town_dir: Annotated[
         list[Path] | None,
         typer.Option(help="folder of <town>.net.xml networks, searched after the route file's own folder"),
     ] = None,
 ) -> None:
     """Evaluate an agent on a route file; one JSON record per route as it finishes, merged results.json."""
+    from rich.markup import escape
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TaskID, TextColumn, TimeElapsedColumn
 
     from cmudrive.bench.evaluator import EvalConfig
@@ -291,11 +329,16 @@ def evaluate(
         _fail(exc)
     for route_id, message in invalid:
         err_console.print(f"[yellow]skipping route {route_id}:[/] {message}")
+    if not specs:
+        _fail(ValueError(f"{path}: no route to run" + (" (every route is invalid)" if invalid else "")))
     extra_dirs = tuple(str(d.resolve()) for d in town_dir or ())
     specs = [dataclasses.replace(s, town_dirs=s.town_dirs + extra_dirs) for s in specs]
-    config = EvalConfig(
-        tick_cap=tick_cap, step_timeout=step_timeout, record_dir=out / "logs" if record else None
-    )
+    try:
+        config = EvalConfig(
+            tick_cap=tick_cap, step_timeout=step_timeout, record_dir=out / "logs" if record else None
+        )
+    except ValueError as exc:
+        _fail(ValueError(f"--step-timeout / --tick-cap: {exc}"))
     if executor == "ray":
         runner: LocalExecutor | RayExecutor = RayExecutor(ray_address)
     elif executor == "local":
@@ -321,9 +364,14 @@ def evaluate(
                 f"(RC {result.route_completion:.1f}, IS {result.infraction_score:.2f}), "
                 f"{result.wall_time:.0f} s"
             )
+            if result.error:  # why it crashed, in one line: the error's last line
+                last = result.error.strip().splitlines()[-1] if result.error.strip() else ""
+                err_console.print(f"  [red]{escape(last)}[/]", highlight=False)
 
         try:
-            merged = run_evaluation(specs, agent, out, runner, config, resume, on_result, on_progress)
+            merged = run_evaluation(
+                specs, agent, out, runner, config, resume, on_result, on_progress, max_memory=max_memory
+            )
         except KeyboardInterrupt:
             err_console.print(f"interrupted: finished routes are in {out / 'routes'}; continue with --resume")
             raise typer.Exit(code=130) from None

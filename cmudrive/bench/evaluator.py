@@ -16,7 +16,7 @@ import time
 import traceback
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -33,7 +33,13 @@ from cmudrive.agents.base import (
 from cmudrive.bench.criteria import CriteriaConfig, RouteCriteria
 from cmudrive.bench.metrics import comfort_score, route_result
 from cmudrive.bench.recording import RouteRecorder, infraction_event
-from cmudrive.bench.records import STATUS_AGENT_CRASHED, STATUS_SIM_CRASHED, STATUS_TICK_CAP, RouteResult
+from cmudrive.bench.records import (
+    STATUS_AGENT_CRASHED,
+    STATUS_SIM_CRASHED,
+    STATUS_TICK_CAP,
+    RouteResult,
+    record_stem,
+)
 from cmudrive.bench.routes import RouteSpec
 from cmudrive.maps import MapError, RoadMap, Route, load_map
 from cmudrive.sim.background import BackgroundActivity, BackgroundConfig
@@ -56,9 +62,18 @@ class RouteInputError(ValueError):
 class EvalConfig:
     tick_cap: int = 4000  # Bench2Drive: 4000 ticks = 200 s of simulated time
     step_timeout: float = 10.0  # [s] wall clock per run_step call before the agent counts as hung
+    setup_timeout: float = 600.0  # [s] wall clock for the agent's setup (loading a model may take long)
     background: BackgroundConfig = field(default_factory=BackgroundConfig)
     criteria: CriteriaConfig = field(default_factory=CriteriaConfig)
     record_dir: Path | None = None  # write a replayable log per route here
+
+    def __post_init__(self) -> None:
+        if self.tick_cap < 1:
+            raise ValueError(f"tick_cap must be >= 1 tick, got {self.tick_cap}")
+        for name in ("step_timeout", "setup_timeout"):  # 0 would silently switch the time limit off
+            value = getattr(self, name)
+            if not value > 0.0 or not np.isfinite(value):
+                raise ValueError(f"{name} must be a positive number of seconds, got {value}")
 
 
 def plan_cav_routes(spec: RouteSpec, road_map: RoadMap) -> list[Route]:
@@ -68,14 +83,38 @@ def plan_cav_routes(spec: RouteSpec, road_map: RoadMap) -> list[Route]:
         raise RouteInputError(str(exc)) from exc
 
 
+@dataclass
+class RouteHooks:
+    """What a caller (the runner's worker) hears of a running route.
+
+    ``tick(t)`` after every tick; ``phase(name)`` when the route enters ``"setup"`` (the agent's
+    constructor or ``setup`` runs), ``"agent"`` (its ``run_step`` runs) or ``"sim"`` (our code runs), so
+    that a watchdog outside the process can tell a hung or dead agent from a crashed simulation;
+    ``partial(result)`` every ``partial_every`` ticks with the scores so far, so that a route whose
+    process dies keeps them."""
+
+    tick: Callable[[int], None] | None = None
+    phase: Callable[[str], None] | None = None
+    partial: Callable[[RouteResult], None] | None = None
+    partial_every: int = 20  # [ticks]
+
+    def enter(self, name: str) -> None:
+        if self.phase is not None:
+            self.phase(name)
+
+
 def evaluate_route(
     spec: RouteSpec,
     make_agent: Callable[[], Agent],
     config: EvalConfig | None = None,
     on_tick: Callable[[int], None] | None = None,
+    hooks: RouteHooks | None = None,
 ) -> RouteResult:
     """Run one route to the end and score it (see the module docstring for what is raised)."""
     config = config or EvalConfig()
+    hooks = hooks or RouteHooks()
+    if on_tick is not None:
+        hooks = replace(hooks, tick=on_tick)
     started = time.perf_counter()
     try:
         town_path = spec.town_path()
@@ -83,7 +122,12 @@ def evaluate_route(
     except MapError as exc:
         raise RouteInputError(str(exc) if spec.id in str(exc) else f"route {spec.id}: {exc}") from exc
     routes = plan_cav_routes(spec, road_map)
-    agent = make_agent()
+    hooks.enter("setup")
+    try:
+        agent = make_agent()
+    except Exception as exc:
+        raise AgentCrash(f"the agent's constructor raised: {exc!r}") from exc
+    hooks.enter("sim")
     check_observations(agent)
     privileged = Observation.PRIVILEGED in type(agent).observations
     world_config = WorldConfig(town=str(town_path), seed=spec.seed, weather=spec.weather)
@@ -95,11 +139,11 @@ def evaluate_route(
         cav_ids = list(world.cav_ids)
         criteria = RouteCriteria(road_map, routes, cav_ids, config.criteria, DT)
         recorder = _recorder(spec, routes, config)
-        loop = _Loop(world, criteria, agent, privileged, config, recorder)
+        loop = _Loop(world, criteria, agent, privileged, config, recorder, hooks, spec)
         error = None
         try:
-            agent.setup(_setup(spec, road_map, routes, cav_ids, privileged))
-            loop.run(on_tick)
+            loop.setup(_setup(spec, road_map, routes, cav_ids, privileged))
+            loop.run()
         except AgentCrash:
             criteria.end_route(STATUS_AGENT_CRASHED)
             error = traceback.format_exc()
@@ -117,7 +161,7 @@ def evaluate_route(
                 for events in cav.infractions.values():
                     for inf in events:  # log ticks count recorded snapshots: world step 1 is log tick 0
                         recorder.add_events(max(inf.tick - 1, 0), [infraction_event(i, inf)])
-            recorder.save(Path(config.record_dir or ".") / f"{spec.id}.npz")
+            recorder.save(Path(config.record_dir or ".") / f"{record_stem(spec.id)}.npz")
     result = route_result(
         spec.id,
         spec.town,
@@ -129,6 +173,7 @@ def evaluate_route(
     result.ticks = world.step_count
     result.wall_time = time.perf_counter() - started
     result.error = error
+    result.scenario_simulated = False if spec.scenarios else None  # no scenario behaviour runs yet
     return result
 
 
@@ -181,14 +226,37 @@ class _Loop:
         privileged: bool,
         config: EvalConfig,
         recorder: RouteRecorder | None,
+        hooks: RouteHooks,
+        spec: RouteSpec,
     ) -> None:
         self.world, self.criteria, self.agent = world, criteria, agent
         self.privileged, self.config, self.recorder = privileged, config, recorder
+        self.hooks, self.spec = hooks, spec
         n = len(world.cav_ids)
         self.trace = np.full((config.tick_cap + 1, n, 4), np.nan)  # x, y, yaw, speed per tick and CAV
 
-    def run(self, on_tick: Callable[[int], None] | None) -> None:
-        world, criteria = self.world, self.criteria
+    def setup(self, setup: RouteSetup) -> None:
+        """The agent's ``setup``: anything it raises (SystemExit and KeyboardInterrupt too) is its crash."""
+        self.hooks.enter("setup")
+        try:
+            with _time_limit(self.config.setup_timeout):
+                self.agent.setup(setup)
+        except _StepTimeout as exc:
+            raise AgentCrash(f"setup took longer than {self.config.setup_timeout:.1f} s") from exc
+        except BaseException as exc:
+            raise AgentCrash(f"setup raised: {exc!r}") from exc
+        self.hooks.enter("sim")
+
+    def partial(self) -> RouteResult:
+        """The route's scores so far (comfort and the first-junction share are left for the end)."""
+        s = self.spec
+        scenario = s.scenarios[0].type if s.scenarios else ""
+        result = route_result(s.id, s.town, s.weather, scenario, self.criteria.results(), seed=s.seed)
+        result.ticks = self.world.step_count
+        return result
+
+    def run(self) -> None:
+        world, criteria, hooks = self.world, self.criteria, self.hooks
         snap = world.snapshot()
         for tick in range(self.config.tick_cap):
             rows, index = _active_cavs(snap, world)
@@ -203,8 +271,10 @@ class _Loop:
                 self.recorder.record(snap, controls, np.flatnonzero(snap.role == Role.CAV))
             for i in np.flatnonzero(criteria.newly_finished()):
                 world.remove_cav(int(i))
-            if on_tick is not None:
-                on_tick(tick + 1)
+            if hooks.tick is not None:
+                hooks.tick(tick + 1)
+            if hooks.partial is not None and (tick + 1) % hooks.partial_every == 0:
+                hooks.partial(self.partial())
             if criteria.finished().all():
                 return
         criteria.end_route(STATUS_TICK_CAP)
@@ -221,6 +291,7 @@ class _Loop:
             accel=snap.accel[rows],
             snapshot=snap if self.privileged else None,
         )
+        self.hooks.enter("agent")
         try:
             with _time_limit(self.config.step_timeout):
                 controls = self.agent.run_step(obs)
@@ -228,8 +299,9 @@ class _Loop:
             raise AgentCrash(
                 f"run_step took longer than {self.config.step_timeout:.1f} s at tick {tick}"
             ) from exc
-        except Exception as exc:
+        except BaseException as exc:  # SystemExit and KeyboardInterrupt from agent code are its crash too
             raise AgentCrash(f"run_step raised at tick {tick}: {exc!r}") from exc
+        self.hooks.enter("sim")
         if not isinstance(controls, Controls):
             raise AgentCrash(f"run_step returned {type(controls).__name__}, not Controls, at tick {tick}")
         return controls
@@ -255,8 +327,10 @@ def _active_cavs(snap: Snapshot, world: World) -> tuple[np.ndarray, np.ndarray]:
     return rows[keep], index[keep]
 
 
-class _StepTimeout(Exception):
-    pass
+class _StepTimeout(BaseException):
+    """Raised into the agent's code when it overruns: a BaseException, so that the agent's own
+    ``except Exception`` cannot swallow it (a hang in native code never sees it: the runner's parent
+    process watches for that)."""
 
 
 @contextmanager
@@ -279,4 +353,12 @@ def _time_limit(seconds: float) -> Iterator[None]:
         signal.signal(signal.SIGALRM, previous)
 
 
-__all__ = ["PROVIDED", "AgentCrash", "EvalConfig", "RouteInputError", "evaluate_route", "plan_cav_routes"]
+__all__ = [
+    "PROVIDED",
+    "AgentCrash",
+    "EvalConfig",
+    "RouteHooks",
+    "RouteInputError",
+    "evaluate_route",
+    "plan_cav_routes",
+]

@@ -7,6 +7,8 @@ leaderboard / Bench2Drive results files where they exist (``reference/SCORING.md
 
 from __future__ import annotations
 
+import hashlib
+import re
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -94,6 +96,9 @@ class RouteResult:
     ticks: int = 0  # ticks simulated
     wall_time: float = 0.0  # [s]
     error: str | None = None  # traceback text when the agent or the simulation crashed
+    # False while the route's scenario behaviour is not simulated yet (the scenario engine has not landed:
+    # the route is scored under its type, but no scenario actor ran); None for a route without scenario
+    scenario_simulated: bool | None = None
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
@@ -107,3 +112,20 @@ class RouteResult:
             cavs.append(CavResult(**c))
         fields = {k: v for k, v in data.items() if k != "cavs"}
         return RouteResult(cavs=cavs, **fields)
+
+
+RECORD_STEM_CHARS = 80  # longest route id used as a file name as it is
+_SAFE_ID = re.compile(r"[A-Za-z0-9_-][A-Za-z0-9_.-]*", re.ASCII)
+
+
+def record_stem(route_id: str) -> str:
+    """File name stem of a route's record and log. An id of letters, digits and ``_.-`` (not starting
+    with a dot) up to ``RECORD_STEM_CHARS`` long is its own stem (``smoke_00.json``); any other id gets
+    its file-safe form cut to that length, ``~`` and a hash of the exact id. No safe id contains ``~``, so
+    two ids never share a file ("a/b" and "a_b"), and a long id never makes a name the file system
+    refuses."""
+    if len(route_id) <= RECORD_STEM_CHARS and _SAFE_ID.fullmatch(route_id):
+        return route_id
+    readable = "".join(c if c.isascii() and (c.isalnum() or c in "-_.") else "_" for c in route_id)
+    digest = hashlib.sha256(route_id.encode("utf-8", "surrogatepass")).hexdigest()[:12]
+    return f"{readable[:RECORD_STEM_CHARS].lstrip('.')}~{digest}"

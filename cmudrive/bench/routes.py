@@ -51,6 +51,19 @@ from cmudrive.sim.weather import WEATHERS
 MIN_CAVS = 2  # [-] CAVs per route in a route file (``min_cavs=1`` allows single-ego files)
 MAX_CAVS = 16  # [-] CAVs per route
 MIN_WAYPOINTS = 2  # [-] per CAV
+MAX_SEED = 2**31 - 1  # SUMO's --seed is a 32-bit signed integer
+MAX_COORDINATE = 1.0e6  # [m] |x|, |y|, |z| of a waypoint or trigger point (CARLA towns span < 10 km)
+MIN_ROUTE_LENGTH = 10.0  # [m] a CAV route shorter than this cannot be driven and completed
+MAX_ROUTE_LENGTH = 20_000.0  # [m] a CAV route (Bench2Drive's longest is ~2 km; 4000 ticks ~ 5 km)
+DETOUR_FACTOR = 3.0  # a dense route longer than this x its waypoints' polyline + DETOUR_SLACK loops
+DETOUR_SLACK = 500.0  # [m]
+
+# numbers as route files write them: ASCII decimal only (str.isdigit and float accept "²", "١٢", "1_000")
+_INT = re.compile(r"[0-9]+", re.ASCII)
+_FLOAT = re.compile(  # (nan and inf pass here to be refused as non-finite)
+    r"[+-]?(?:(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?|nan|inf|infinity)", re.ASCII | re.IGNORECASE
+)
+_XML_SPACE = " \t\r\n"  # what XML calls white space (a no-break space is not)
 
 # CAV generation (add_cavs / generate_routes)
 
@@ -200,8 +213,10 @@ class RouteSpec:
             return "missing town"
         if self.weather not in WEATHERS:
             return f"unknown weather {self.weather!r}; valid: {', '.join(WEATHERS)}"
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int | np.integer) or self.seed < 0:
-            return f"seed must be a non-negative integer, got {self.seed!r}"
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int | np.integer):
+            return f"seed must be an integer in 0..{MAX_SEED}, got {self.seed!r}"
+        if not 0 <= self.seed <= MAX_SEED:
+            return f"seed must be an integer in 0..{MAX_SEED}, got {self.seed!r}"
         if not 1 <= len(self.cavs) <= MAX_CAVS:
             return f"needs 1-{MAX_CAVS} CAVs, got {len(self.cavs)}"
         ids = [c.id for c in self.cavs]
@@ -221,13 +236,25 @@ class RouteSpec:
 
     def dense_routes(self, road_map: RoadMap) -> list[Route]:
         """Every CAV's waypoints joined into a dense 1 m route (``cmudrive.maps.densify``), in CAV order;
-        a RouteError names the route and the CAV."""
+        a RouteError names the route and the CAV. A route must be ``MIN_ROUTE_LENGTH`` to
+        ``MAX_ROUTE_LENGTH`` long, and at most ``DETOUR_FACTOR`` x its waypoints' polyline +
+        ``DETOUR_SLACK``: waypoints that go back and forth make the planner loop round blocks."""
         routes = []
         for cav in self.cavs:
+            points = self.map_waypoints(cav.id)
+            polyline = float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
+            cap = min(MAX_ROUTE_LENGTH, DETOUR_FACTOR * polyline + DETOUR_SLACK)
+            where = f"route {self.id!r} on {road_map.name!r}, CAV {cav.id}"
             try:
-                routes.append(densify(road_map, self.map_waypoints(cav.id)))
+                route = densify(road_map, points, max_length=cap)
             except RouteError as exc:
-                raise RouteError(f"route {self.id!r} on {road_map.name!r}, CAV {cav.id}: {exc}") from None
+                raise RouteError(f"{where}: {exc}") from None
+            if route.length < MIN_ROUTE_LENGTH:
+                raise RouteError(
+                    f"{where}: the route is {route.length:.1f} m long, shorter than {MIN_ROUTE_LENGTH:.0f} m "
+                    "(its waypoints are (nearly) all the same point)"
+                )
+            routes.append(route)
         return routes
 
 
@@ -244,13 +271,22 @@ def _number(elem: ET.Element, attr: str, what: str, default: float | None = None
         if default is not None:
             return default
         raise RouteSpecError(f"{what}: missing attribute {attr!r}")
-    try:
-        value = float(raw)
-    except ValueError:
-        raise RouteSpecError(f"{what}: non-numeric {attr}={raw!r}") from None
+    if not _FLOAT.fullmatch(raw.strip(_XML_SPACE)):
+        raise RouteSpecError(f"{what}: non-numeric {attr}={raw!r} (ASCII decimal numbers only)")
+    value = float(raw)
     if not math.isfinite(value):
         raise RouteSpecError(f"{what}: non-finite {attr}={raw!r}")
+    if attr in "xyz" and abs(value) > MAX_COORDINATE:
+        raise RouteSpecError(f"{what}: {attr}={raw} is beyond +-{MAX_COORDINATE:.0e} m, off any map")
     return value
+
+
+def _integer(raw: str | None, what: str, largest: int) -> int:
+    """A non-negative ASCII decimal integer up to ``largest``; RouteSpecError naming ``what``."""
+    text = (raw or "").strip(_XML_SPACE)
+    if not _INT.fullmatch(text) or int(text) > largest:
+        raise RouteSpecError(f"{what} must be an integer in 0..{largest}, got {raw!r}")
+    return int(text)
 
 
 def _check_attrs(elem: ET.Element, allowed: frozenset[str], what: str) -> None:
@@ -314,9 +350,7 @@ def _route_from_xml(elem: ET.Element, min_cavs: int) -> RouteSpec:
     for attr in ("town", "weather"):
         if not elem.get(attr):
             raise RouteSpecError(f"missing {attr}")
-    seed_raw = elem.get("seed", "0")
-    if not seed_raw.strip().isdigit():
-        raise RouteSpecError(f"seed must be a non-negative integer, got {seed_raw!r}")
+    seed = _integer(elem.get("seed", "0"), "seed", MAX_SEED)
     cavs = [_cav_from_xml(c, i) for i, c in enumerate(elem.findall("cav"))]
     if not min_cavs <= len(cavs) <= MAX_CAVS:
         raise RouteSpecError(f"needs {min_cavs}-{MAX_CAVS} <cav> elements, got {len(cavs)}")
@@ -333,17 +367,14 @@ def _route_from_xml(elem: ET.Element, min_cavs: int) -> RouteSpec:
         id=str(elem.get("id")),
         town=str(elem.get("town")),
         weather=str(elem.get("weather")),
-        seed=int(seed_raw),
+        seed=seed,
         cavs=tuple(sorted(cavs, key=lambda c: c.id)),
         scenarios=tuple(scenarios),
     )
 
 
 def _cav_from_xml(elem: ET.Element, index: int) -> CavSpec:
-    raw = elem.get("id")
-    if raw is None or not raw.strip().isdigit():
-        raise RouteSpecError(f"<cav> number {index} needs an integer id >= 0, got {raw!r}")
-    cav_id = int(raw)
+    cav_id = _integer(elem.get("id"), f"the id of <cav> number {index}", 10**9)
     try:
         _check_attrs(elem, frozenset({"id"}), "<cav>")
         unknown = sorted({c.tag for c in elem} - {"waypoints"})
@@ -368,7 +399,7 @@ def parse_xml(path: str | Path, root_tag: str) -> ET.Element:
         root = ET.parse(path).getroot()
     except FileNotFoundError:
         raise RouteSpecError("route file not found", path=str(path)) from None
-    except (ET.ParseError, OSError) as exc:
+    except (ET.ParseError, OSError, LookupError, UnicodeError) as exc:  # LookupError: unknown encoding
         raise RouteSpecError(f"not readable as XML: {exc}", path=str(path)) from None
     if root.tag != root_tag:
         raise RouteSpecError(f"root element is <{root.tag}>, expected <{root_tag}>", path=str(path))

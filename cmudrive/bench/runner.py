@@ -2,14 +2,28 @@
 
 Layout of an output folder::
 
-    OUT/routes/<route_id>.json   one RouteResult per finished route, written atomically as it finishes
-    OUT/results.json             {"summary": {...}, "routes": [...]}, rewritten after every route
-    OUT/logs/<route_id>.npz      replayable route logs (with --record)
+    OUT/routes/<stem>.json   one RouteResult per finished route, written atomically as it finishes
+    OUT/results.json         {"summary": {...}, "routes": [...]}, rewritten after every route
+    OUT/logs/<stem>.npz      replayable route logs (with --record)
+
+``<stem>`` is ``records.record_stem(route_id)``: the id made file-safe and cut to 80 characters, then a
+hash of the exact id (ids of any length and characters, and no two ids share a file).
 
 Every route runs in a fresh worker process (libsumo holds one simulation per process, and a crash of
 SUMO or of the agent's native code must not take the run down); the route loop does not know which
 executor runs it. ``resume`` skips routes whose record exists and did not crash, and runs the others
-again. Ctrl-C stops the run; what finished is on disk.
+again; a new run into a folder that already holds records is refused (resume it, or use another
+folder), and results only ever merge the records of the routes of this run's file. Ctrl-C stops the
+run; what finished is on disk.
+
+**The local executor's watchdog.** A worker tells the parent, through shared memory, which phase it is
+in (``setup``: the agent's constructor and ``setup``; ``agent``: ``run_step``; ``sim``: our code) and
+since when, and sends its route's scores every second of simulated time. A worker silent in one phase
+for longer than that phase allows (``setup_timeout`` / ``step_timeout`` + ``WATCHDOG_GRACE``, or
+``SIM_SILENCE`` in our code) is killed, which stops an agent stuck in native code that no in-process
+timeout can interrupt. A killed or dead worker's route is recorded with the last scores it sent,
+"Failed - Agent crashed" when the agent's code was running (hung, ``os._exit``, a segfault in the
+agent's extension), "Failed - Simulation crashed" otherwise.
 """
 
 from __future__ import annotations
@@ -17,23 +31,38 @@ from __future__ import annotations
 import json
 import os
 import queue
+import resource
 import tempfile
+import time
 import traceback
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Any, Protocol
 
 from cmudrive.agents.base import Agent, AgentSetupError, load_agent_class
-from cmudrive.bench.evaluator import AgentCrash, EvalConfig, evaluate_route
-from cmudrive.bench.metrics import route_result, summarize
-from cmudrive.bench.records import STATUS_AGENT_CRASHED, STATUS_SIM_CRASHED, RouteResult
+from cmudrive.bench.evaluator import AgentCrash, EvalConfig, RouteHooks, evaluate_route
+from cmudrive.bench.metrics import route_result, route_status, summarize
+from cmudrive.bench.records import (
+    STATUS_AGENT_CRASHED,
+    STATUS_RUNNING,
+    STATUS_SIM_CRASHED,
+    RouteResult,
+    record_stem,
+)
 from cmudrive.bench.routes import RouteSpec
 
 CRASHED = (STATUS_AGENT_CRASHED, STATUS_SIM_CRASHED)
 ROUTES_DIR = "routes"
-PROGRESS_EVERY = 20  # ticks between progress messages from a worker
+PROGRESS_EVERY = 20  # ticks between progress messages (and partial scores) from a worker
+WATCHDOG_GRACE = 5.0  # [s] added to the agent's time limits before its worker is killed
+SIM_SILENCE = 300.0  # [s] our own code silent this long (no tick, no phase change) counts as hung
+PHASES = ("sim", "setup", "agent")  # what a worker is running, as stored in its shared phase slot
+
+
+class OutputFolderError(ValueError):
+    """The output folder holds records of an earlier run and this run is not a resume."""
 
 
 @dataclass(frozen=True)
@@ -43,19 +72,23 @@ class RouteTask:
     spec: RouteSpec
     agent: str  # "package.module:Class"
     config: EvalConfig
+    max_memory: float | None = None  # [GiB] address-space limit of the worker process (local executor)
 
 
-def run_task(task: RouteTask, progress: Any = None) -> RouteResult:
+def run_task(task: RouteTask, progress: Any = None, hooks: RouteHooks | None = None) -> RouteResult:
     """Run one route in this process; errors before the route starts become a crashed record.
     ``progress`` (a queue) receives ``(route_id, tick)`` every PROGRESS_EVERY ticks."""
+    hooks = hooks or RouteHooks()
 
     def on_tick(tick: int) -> None:
+        if hooks.tick is not None:
+            hooks.tick(tick)
         if progress is not None and tick % PROGRESS_EVERY == 0:
             progress.put((task.spec.id, tick))
 
     try:
         agent_cls = load_agent_class(task.agent)
-        return evaluate_route(task.spec, agent_cls, task.config, on_tick=on_tick)
+        return evaluate_route(task.spec, agent_cls, task.config, hooks=replace(hooks, tick=on_tick))
     except Exception as exc:
         return crashed_record(task.spec, exc)
 
@@ -91,8 +124,8 @@ class Executor(Protocol):
 
 class LocalExecutor:
     """Worker processes on this machine, a fresh one per route (spawned, so nothing of the parent's state
-    leaks in); at most ``workers`` at a time. A worker that dies without a result (segfault, killed) gives
-    a crashed record for its route; the others go on."""
+    leaks in); at most ``workers`` at a time, each watched by the parent (module docstring). A worker that
+    dies or is killed gives its route a crashed record with the scores it last sent; the others go on."""
 
     def __init__(self, workers: int = 1) -> None:
         self.workers = max(1, workers)
@@ -103,57 +136,123 @@ class LocalExecutor:
         ctx = get_context("spawn")
         messages = ctx.Queue()
         waiting = list(reversed(tasks))
-        running: dict[str, tuple[Any, RouteTask]] = {}
+        running: dict[str, _Running] = {}
         delivered: set[str] = set()
         try:
             while waiting or running:
                 while waiting and len(running) < self.workers:
                     task = waiting.pop()
-                    proc = ctx.Process(target=_worker, args=(task, messages), daemon=True)
+                    beat = ctx.RawArray("d", [time.monotonic(), 0.0])  # since when, phase index
+                    proc = ctx.Process(target=_worker, args=(task, messages, beat), daemon=True)
                     proc.start()
-                    running[task.spec.id] = (proc, task)
+                    running[task.spec.id] = _Running(proc, task, beat)
                 try:
-                    yield from self._handle(messages.get(timeout=0.2), delivered, on_progress)
+                    yield from self._handle(messages.get(timeout=0.2), delivered, running, on_progress)
                 except queue.Empty:
                     pass
-                for route_id, (proc, task) in list(running.items()):
-                    if proc.is_alive():
+                for route_id, job in list(running.items()):
+                    verdict = job.hung() if job.proc.is_alive() else None
+                    if job.proc.is_alive() and verdict is None:
                         continue
-                    proc.join()
+                    if verdict is not None:
+                        job.proc.kill()
+                    job.proc.join()
                     del running[route_id]
                     for message in _drain(messages):  # its result may still be in the queue
-                        yield from self._handle(message, delivered, on_progress)
+                        yield from self._handle(message, delivered, running, on_progress, job)
                     if route_id not in delivered:
-                        exc = RuntimeError(
-                            f"worker process of route {route_id} died (exit code {proc.exitcode})"
-                        )
                         delivered.add(route_id)
-                        yield crashed_record(task.spec, exc)
+                        yield job.lost(verdict)
         finally:
-            for proc, _ in running.values():
-                proc.terminate()
+            for job in running.values():
+                job.proc.kill()
 
     @staticmethod
     def _handle(
-        message: tuple[str, str, Any], delivered: set[str], on_progress: ProgressCallback | None
+        message: tuple[str, str, Any],
+        delivered: set[str],
+        running: dict[str, _Running],
+        on_progress: ProgressCallback | None,
+        finished: _Running | None = None,
     ) -> Iterator[RouteResult]:
         kind, route_id, payload = message
+        job = running.get(route_id, finished if finished and finished.task.spec.id == route_id else None)
         if kind == "progress":
             if on_progress is not None:
                 on_progress(route_id, payload)
+        elif kind == "partial":
+            if job is not None:
+                job.partial = payload
         elif route_id not in delivered:
             delivered.add(route_id)
             yield RouteResult.from_json(payload)
 
 
-def _worker(task: RouteTask, messages: Any) -> None:
-    """Body of a worker process: run the route, send progress and the result (as JSON-ready data)."""
+@dataclass
+class _Running:
+    """A worker process, its task, its shared heartbeat and the last scores it sent."""
+
+    proc: Any
+    task: RouteTask
+    beat: Any  # RawArray [monotonic time of the last phase change, index into PHASES]
+    partial: dict[str, Any] | None = None
+
+    def phase(self) -> str:
+        return PHASES[int(self.beat[1])]
+
+    def hung(self) -> str | None:
+        """Why the worker counts as hung now, or None."""
+        cfg = self.task.config
+        limit = {"sim": SIM_SILENCE, "setup": cfg.setup_timeout + WATCHDOG_GRACE}.get(
+            self.phase(), cfg.step_timeout + WATCHDOG_GRACE
+        )
+        silent = time.monotonic() - self.beat[0]
+        if silent <= limit:
+            return None
+        what = {"sim": "the simulation", "setup": "the agent's setup", "agent": "run_step"}[self.phase()]
+        return f"{what} made no progress for {silent:.0f} s (limit {limit:.0f} s): worker killed"
+
+    def lost(self, verdict: str | None) -> RouteResult:
+        """The record of a route whose worker died (``verdict`` None) or was killed as hung."""
+        agent_fault = self.phase() in ("setup", "agent")
+        status = STATUS_AGENT_CRASHED if agent_fault else STATUS_SIM_CRASHED
+        why = verdict or f"worker process died (exit code {self.proc.exitcode})"
+        message = f"route {self.task.spec.id}: {why} while {'the agent' if agent_fault else 'our code'} ran"
+        if self.partial is None:
+            record = crashed_record(self.task.spec, RuntimeError(message))
+            record.status = status
+            return record
+        record = RouteResult.from_json(self.partial)
+        for cav in record.cavs:
+            if cav.status == STATUS_RUNNING:
+                cav.status = status
+        record.status = route_status(record.cavs)
+        record.error = message
+        return record
+
+
+def _worker(task: RouteTask, messages: Any, beat: Any) -> None:
+    """Body of a worker process: run the route, send progress, partial scores and the result (as
+    JSON-ready data), and keep ``beat`` (the phase and since when) current for the parent's watchdog."""
+    if task.max_memory is not None:
+        limit = int(task.max_memory * 2**30)
+        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
 
     class _Progress:
         def put(self, item: tuple[str, int]) -> None:
             messages.put(("progress", item[0], item[1]))
 
-    result = run_task(task, _Progress())
+    def phase(name: str) -> None:
+        beat[0], beat[1] = time.monotonic(), float(PHASES.index(name))
+
+    def tick(_: int) -> None:
+        beat[0] = time.monotonic()
+
+    def partial(result: RouteResult) -> None:
+        messages.put(("partial", task.spec.id, result.to_json()))
+
+    hooks = RouteHooks(tick=tick, phase=phase, partial=partial, partial_every=PROGRESS_EVERY)
+    result = run_task(task, _Progress(), hooks)
     messages.put(("result", task.spec.id, result.to_json()))
 
 
@@ -197,43 +296,48 @@ class RayExecutor:
 
 
 def write_json_atomic(path: Path, data: Any) -> None:
+    """Write JSON to ``path`` through a temporary file and a rename, with the umask's permissions."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=".tmp.", suffix=".json", dir=path.parent)  # short: ids can be long
     try:
         with os.fdopen(fd, "w") as fh:
             json.dump(data, fh, indent=1)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp's 0600 would hide the results from other users
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
 
 
-def finished_route_ids(out: Path) -> set[str]:
-    """Routes with a record that did not crash (what --resume skips)."""
-    done = set()
-    for path in (out / ROUTES_DIR).glob("*.json"):
+def record_path(out: Path, route_id: str) -> Path:
+    return out / ROUTES_DIR / f"{record_stem(route_id)}.json"
+
+
+def finished_route_ids(out: Path, route_ids: list[str]) -> set[str]:
+    """Routes of ``route_ids`` with a record that did not crash (what --resume skips)."""
+    return {rid for rid, record in _records(out, route_ids).items() if record.status not in CRASHED}
+
+
+def _records(out: Path, route_ids: list[str]) -> dict[str, RouteResult]:
+    """The records of these routes found in ``out`` (unreadable ones are left out: they run again)."""
+    found = {}
+    for rid in route_ids:
         try:
-            data = json.loads(path.read_text())
-        except (OSError, json.JSONDecodeError):
+            record = RouteResult.from_json(json.loads(record_path(out, rid).read_text()))
+        except (OSError, ValueError, KeyError, TypeError):
             continue
-        if data.get("status") not in CRASHED:
-            done.add(str(data["route_id"]))
-    return done
-
-
-def load_records(out: Path) -> list[RouteResult]:
-    records = []
-    for path in sorted((out / ROUTES_DIR).glob("*.json")):
-        records.append(RouteResult.from_json(json.loads(path.read_text())))
-    return records
+        if record.route_id == rid:
+            found[rid] = record
+    return found
 
 
 def merge_results(out: Path, order: list[str], expected: int | None = None) -> dict[str, Any]:
-    """Write OUT/results.json from the per-route records, routes in route-file order."""
-    records = {r.route_id: r for r in load_records(out)}
-    routes = [records[rid] for rid in order if rid in records] + [
-        r for rid, r in records.items() if rid not in set(order)
-    ]
+    """Write OUT/results.json from the records of the routes ``order`` (route-file order); records of
+    other routes in the folder are not this run's and are left out."""
+    records = _records(out, order)
+    routes = [records[rid] for rid in order if rid in records]
     merged = {"summary": summarize(routes, expected_routes=expected), "routes": [r.to_json() for r in routes]}
     write_json_atomic(out / "results.json", merged)
     return merged
@@ -248,30 +352,43 @@ def run_evaluation(
     resume: bool = False,
     on_result: Callable[[RouteResult], None] | None = None,
     on_progress: ProgressCallback | None = None,
+    max_memory: float | None = None,
 ) -> dict[str, Any]:
-    """Evaluate ``routes`` with ``agent`` and return the merged results (also in OUT/results.json)."""
+    """Evaluate ``routes`` with ``agent`` and return the merged results (also in OUT/results.json).
+
+    Without ``resume``, ``out`` must not hold route records yet (:class:`OutputFolderError`)."""
     agent_spec = agent if isinstance(agent, str) else f"{agent.__module__}:{agent.__qualname__}"
     load_agent_class(agent_spec)  # fail fast, before any worker starts
+    if not routes:
+        raise ValueError("no route to run")
+    ids = [spec.id for spec in routes]
+    dup = sorted({i for i in ids if ids.count(i) > 1})
+    if dup:
+        raise ValueError(f"duplicate route ids: {dup}")
+    old = sorted((out / ROUTES_DIR).glob("*.json")) if (out / ROUTES_DIR).is_dir() else []
+    if old and not resume:
+        raise OutputFolderError(
+            f"{out} already holds {len(old)} route records of an earlier run: continue it with --resume, "
+            "or write to another --out folder"
+        )
+    if max_memory is not None and not max_memory > 0.0:
+        raise ValueError(f"max_memory must be a positive number of GiB, got {max_memory}")
     out.mkdir(parents=True, exist_ok=True)
     config = config or EvalConfig()
-    skip = finished_route_ids(out) if resume else set()
-    tasks = [RouteTask(spec, agent_spec, config) for spec in routes if spec.id not in skip]
-    order = [spec.id for spec in routes]
+    skip = finished_route_ids(out, ids) if resume else set()
+    tasks = [RouteTask(spec, agent_spec, config, max_memory) for spec in routes if spec.id not in skip]
     for result in executor.run(tasks, on_progress):
-        write_json_atomic(out / ROUTES_DIR / f"{_safe(result.route_id)}.json", result.to_json())
-        merge_results(out, order, expected=len(routes))
+        write_json_atomic(record_path(out, result.route_id), result.to_json())
+        merge_results(out, ids, expected=len(routes))
         if on_result is not None:
             on_result(result)
-    return merge_results(out, order, expected=len(routes))
-
-
-def _safe(route_id: str) -> str:
-    return "".join(c if c.isalnum() or c in "-_." else "_" for c in route_id)
+    return merge_results(out, ids, expected=len(routes))
 
 
 __all__ = [
     "Executor",
     "LocalExecutor",
+    "OutputFolderError",
     "RayExecutor",
     "RouteTask",
     "crashed_record",

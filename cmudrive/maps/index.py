@@ -128,7 +128,9 @@ class LaneIndex:
         n = len(xy)
         k = min(k, len(self.sample_xy))
         _, nn = self.tree.query(xy, k=k)
-        nn = nn.reshape(n, k)
+        # a point so far away that its distances overflow gets the missing-neighbour index len(tree):
+        # any real sample serves, the distance test below rejects it
+        nn = np.minimum(nn.reshape(n, k), len(self.sample_xy) - 1)
         seg = self.sample_seg[nn]
         s, d, distance = self._project_segments(xy, seg)
         cost = distance.copy()

@@ -18,6 +18,7 @@ a point behind its start needs. Within each kind the first (cheapest) arrival wi
 from __future__ import annotations
 
 import heapq
+import math
 from dataclasses import dataclass
 from enum import IntEnum
 
@@ -150,14 +151,23 @@ class RoutePlanner:
     def plan_lanes(self, start: LanePos, goal: LanePos, spacing: float = 1.0) -> Route:
         return self._render(self._search(start, goal), spacing)
 
-    def plan_through(self, stops: list[LanePos], spacing: float = 1.0) -> Route:
-        """One route through several lane positions in order, resampled as a whole."""
+    def plan_through(self, stops: list[LanePos], spacing: float = 1.0, max_length: float = math.inf) -> Route:
+        """One route through several lane positions in order, resampled as a whole; RouteError as soon as
+        the legs planned so far are longer than ``max_length`` [m] (so a bad input is refused early)."""
         pieces: list[_Piece] = []
+        length = 0.0
         for i in range(len(stops) - 1):
             try:
-                pieces.extend(self._search(stops[i], stops[i + 1]))
+                leg = self._search(stops[i], stops[i + 1])
             except RouteError as exc:
                 raise RouteError(f"between route points {i} and {i + 1}: {exc}") from None
+            pieces.extend(leg)
+            length += sum(p.s1 - p.s0 for p in leg)
+            if length > max_length:
+                raise RouteError(
+                    f"the route is longer than {max_length:.0f} m by route point {i + 1} "
+                    f"({length:.0f} m planned): its waypoints make it loop or it is too long"
+                )
         return self._render(pieces, spacing)
 
     def _search(self, start: LanePos, goal: LanePos) -> list[_Piece]:
@@ -291,7 +301,9 @@ def _path_heading(xy: np.ndarray, fallback: float) -> np.ndarray:
     return np.asarray(wrap_angle(np.arctan2(grad[:, 1], grad[:, 0])))
 
 
-def densify(road_map: RoadMap, keypoints: np.ndarray, spacing: float = 1.0) -> Route:
+def densify(
+    road_map: RoadMap, keypoints: np.ndarray, spacing: float = 1.0, max_length: float = math.inf
+) -> Route:
     """Join sparse route keypoints (m, 2) with planned paths, like the leaderboard does for route files.
 
     Each keypoint is snapped to the driving lane nearest to it whose direction agrees with the chord from
@@ -311,7 +323,7 @@ def densify(road_map: RoadMap, keypoints: np.ndarray, spacing: float = 1.0) -> R
             positions.append(planner.snap(point, heading))
         except RouteError as exc:
             raise RouteError(f"keypoint {i}: {exc}") from None
-    return planner.plan_through(positions, spacing)
+    return planner.plan_through(positions, spacing, max_length)
 
 
 def pick_far_apart(
