@@ -253,6 +253,7 @@ class _Loop:
         scenario = s.scenarios[0].type if s.scenarios else ""
         result = route_result(s.id, s.town, s.weather, scenario, self.criteria.results(), seed=s.seed)
         result.ticks = self.world.step_count
+        result.scenario_simulated = False if s.scenarios else None  # as in the final record
         return result
 
     def run(self) -> None:

@@ -6,8 +6,9 @@ Layout of an output folder::
     OUT/results.json         {"summary": {...}, "routes": [...]}, rewritten after every route
     OUT/logs/<stem>.npz      replayable route logs (with --record)
 
-``<stem>`` is ``records.record_stem(route_id)``: the id made file-safe and cut to 80 characters, then a
-hash of the exact id (ids of any length and characters, and no two ids share a file).
+``<stem>`` is ``records.record_stem(route_id)``: the id itself when it is short and file-safe, else its
+file-safe form cut to 80 characters, ``~`` and a hash of the exact id (ids of any length and characters
+work, and no two ids share a file).
 
 Every route runs in a fresh worker process (libsumo holds one simulation per process, and a crash of
 SUMO or of the agent's native code must not take the run down); the route loop does not know which
