@@ -579,3 +579,18 @@ def test_collision_spot_is_forgotten_once_5_m_away() -> None:
         assert memory.count(cav, np.array(["bg1"]), spot, fast, time=1.0).tolist() == [True]
         memory.forget_far(cav, far if went_away else spot + 1.0)
         assert memory.count(cav, np.array(["bg2"]), spot, fast, time=9.0).tolist() == [charged]
+
+
+def test_driving_as_fast_as_the_traffic_is_not_too_slow(mini: RoadMap, east: Route) -> None:
+    """Three cars at the CAV's own 8.3 m/s: every part is 100 % and none is listed (or marked "too slow"
+    in a replay), although the traffic's mean speed is summed in floating point over 400 ticks."""
+    scene = Scene(mini, [east])
+    d = 0.0
+    while not scene.criteria.finished()[0]:
+        x, y, yaw = pose_at(east, d)
+        others = tuple(Actor(f"bg{k}", x + 10.0 * (k + 1), y + 3.2, yaw=np.pi, speed=8.3) for k in range(3))
+        scene.tick([(x, y, yaw, 8.3)], others=others)
+        d += 8.3 * DT
+    result = scene.result()
+    assert result.min_speed_checkpoints == pytest.approx([100.0] * 20)
+    assert result.infractions["min_speed_infractions"] == []

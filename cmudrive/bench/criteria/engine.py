@@ -39,6 +39,9 @@ RECORDED_ONLY = frozenset({"min_speed_infractions"})  # keys that do not spoil a
 _COMPLETED = "completed"  # internal outcome; the status (Perfect/Completed) is decided in results()
 
 
+_PERCENT_EPS = 1e-6  # [%] a minimum-speed part this close to 100 % is not "too slow"
+
+
 class RouteCriteria:
     """Criteria of all CAVs of one route.
 
@@ -337,7 +340,7 @@ class RouteCriteria:
         values, records = [], []
         for part, pct in self._min_speed.checkpoints(i, self._route_completion(i)):
             values.append(pct)
-            if pct < 100.0:
+            if pct < 100.0 - _PERCENT_EPS:  # summed in floating point: equal speeds give 99.9999...
                 tick, x, y = self._min_speed.where[i, part]
                 message = f"Average speed is {pct:.1f}% of the surrounding traffic's in route part {part + 1}"
                 at = (int(tick), float(tick * self.dt), float(x), float(y))
