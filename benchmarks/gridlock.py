@@ -42,12 +42,20 @@ def long_route(road_map: RoadMap, length: float, rng: np.random.Generator) -> Ro
     planner = RoutePlanner(road_map)
     lanes = np.flatnonzero(road_map.driving & ~road_map.lane_internal & (road_map.lane_length > 20.0))
     stops = [LanePos(int(lane), 5.0) for lane in rng.choice(lanes, 1)]
-    total = 0.0
-    while total < length:
+    legs: list[float] = []
+    failures = 0
+    while sum(legs) < length:
         nxt = LanePos(int(rng.choice(lanes)), 10.0)
         try:
-            total += planner.plan_through([stops[-1], nxt]).length
+            legs.append(planner.plan_through([stops[-1], nxt]).length)
         except RouteError:
+            failures += 1
+            if failures % 20 == 0:  # a stop no route leaves (a dead end): step back from it
+                if len(stops) > 1:
+                    stops.pop()
+                    legs.pop()
+                else:
+                    stops = [LanePos(int(rng.choice(lanes)), 5.0)]
             continue
         stops.append(nxt)
     return planner.plan_through(stops)
