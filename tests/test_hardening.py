@@ -196,6 +196,7 @@ def _route_xml(seed: str = "0", x: str = "10.0", cav_id: str = "1", encoding: st
         ({"seed": "²"}, "seed must be an integer in 0..2147483647, got '²'"),
         ({"seed": "١٢"}, "seed must be an integer"),
         ({"seed": "4294967296"}, "seed must be an integer in 0..2147483647"),
+        ({"seed": "9" * 5000}, "seed must be an integer in 0..2147483647"),
         ({"cav_id": "１"}, "the id of <cav> number 1 must be an integer"),
         ({"x": "５６２"}, "non-numeric x='５６２' (ASCII decimal numbers only)"),
         ({"x": "1_000"}, "non-numeric x='1_000'"),

@@ -276,7 +276,7 @@ def _number(elem: ET.Element, attr: str, what: str, default: float | None = None
     value = float(raw)
     if not math.isfinite(value):
         raise RouteSpecError(f"{what}: non-finite {attr}={raw!r}")
-    if attr in "xyz" and abs(value) > MAX_COORDINATE:
+    if attr in ("x", "y", "z") and abs(value) > MAX_COORDINATE:
         raise RouteSpecError(f"{what}: {attr}={raw} is beyond +-{MAX_COORDINATE:.0e} m, off any map")
     return value
 
@@ -284,7 +284,7 @@ def _number(elem: ET.Element, attr: str, what: str, default: float | None = None
 def _integer(raw: str | None, what: str, largest: int) -> int:
     """A non-negative ASCII decimal integer up to ``largest``; RouteSpecError naming ``what``."""
     text = (raw or "").strip(_XML_SPACE)
-    if not _INT.fullmatch(text) or int(text) > largest:
+    if not _INT.fullmatch(text) or len(text) > 18 or int(text) > largest:  # (int() refuses 4300+ digits)
         raise RouteSpecError(f"{what} must be an integer in 0..{largest}, got {raw!r}")
     return int(text)
 
