@@ -312,8 +312,8 @@ def test_a_town_without_traffic_lights_replays(tmp_path: Path) -> None:
     """CARLA's Town06 has no light at all: its logs read back with an empty light state (the replay of a
     Town06 route failed with "zip() argument 2 is shorter than argument 1")."""
     recorder = RouteRecorder("r", "Town06", [np.zeros((2, 2))])
-    snap = Snapshot.from_rows(1, 0.05, np.zeros(0, dtype=str), ids=np.array(["cav0"]),
-                              role=np.array([Role.CAV], np.int8), x=np.array([1.0]), y=np.array([2.0]))  # fmt: skip
+    cav = {"ids": np.array(["cav0"]), "role": np.array([Role.CAV], np.int8)}
+    snap = Snapshot.from_rows(1, 0.05, np.zeros(0, dtype=str), x=np.array([1.0]), y=np.array([2.0]), **cav)
     recorder.record(snap, None, np.array([0]))
     log = load_route_log(recorder.save(tmp_path / "r.npz"))
     assert log.tls_state(0).tolist() == [] and log.snapshot(0).ids.tolist() == ["cav0"]
