@@ -66,6 +66,13 @@ def _lane_types(path: Path) -> dict[str, str]:
     return types
 
 
+# A normal lane whose shape is shorter than this share of its SUMO length has collapsed: netconvert offsets
+# a tight curve's inner lanes from the road's centreline until they fold (the inner lanes of CARLA Town06's
+# 7-lane teardrop loops are 3-6 m of shape for 50-58 m of road), and a plan along them jumps across the
+# median. Such a lane is kept as a non-driving lane, so routes take the loop's intact lanes.
+COLLAPSED_FRACTION = 0.5
+
+
 def _lane_kind(lane: Any, edge_function: str, lane_type: str) -> LaneKind:
     if edge_function == "crossing":
         return LaneKind.CROSSING
@@ -216,6 +223,8 @@ class _Builder:
             width[i] = lane.getWidth()
             speed[i] = lane.getSpeed()
             xy, s = _polyline(lane.getShape())
+            if not internal[i] and s[-1] < COLLAPSED_FRACTION * lane.getLength():
+                kind[i] = LaneKind.SHOULDER  # collapsed: see COLLAPSED_FRACTION
             polylines.append(xy)
             arclens.append(s)
         ptr = np.zeros(n + 1, np.int64)

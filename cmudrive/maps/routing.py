@@ -176,7 +176,7 @@ class RoutePlanner:
         # heap entries: (cost, tiebreak, label id); labels: (lane, s_in, parent label, piece)
         labels: list[tuple[int, float, int, _Piece | None]] = [(start.lane, start.s, -1, None)]
         heap: list[tuple[float, int, int]] = [(0.0, 0, 0)]
-        done: set[tuple[int, bool, bool]] = set()  # (lane, entered mid-lane, by a shortened change)
+        done: set[tuple[int, float]] = set()  # (lane, where it was entered [m], to 0.1 m)
         goal_label = -1
         counter = 1
         while heap:
@@ -185,11 +185,7 @@ class RoutePlanner:
             if lane == -2:  # the goal pseudo-label
                 goal_label = lid
                 break
-            piece_in = labels[lid][3]
-            short_in = (
-                piece_in is not None and piece_in.src >= 0 and piece_in.s1 - piece_in.s0 < LANE_CHANGE_LENGTH
-            )
-            key = (lane, s_in > 0.0, short_in)
+            key = (lane, round(s_in, 1))
             if key in done and lid != 0:
                 continue
             if lid != 0:
@@ -201,7 +197,7 @@ class RoutePlanner:
             rest = length[lane] - s_in
             follow = _Piece(lane, s_in, float(length[lane]), RoadOption(int(self._lane_option[lane])))
             for nxt in m.successors(lane).tolist():
-                if self._driving[nxt] and (nxt, False, False) not in done:
+                if self._driving[nxt] and (nxt, 0.0) not in done:
                     pushes.append((cost + rest, (nxt, 0.0, lid, follow)))
             if not m.lane_internal[lane] and rest >= LANE_CHANGE_MIN_ROOM:
                 full = min(LANE_CHANGE_LENGTH, rest - 1.0)
@@ -213,7 +209,7 @@ class RoutePlanner:
                     (m.lane_right[lane], RoadOption.CHANGELANERIGHT),
                 ):
                     for change, extra in changes:
-                        state = (int(nxt), True, change < LANE_CHANGE_LENGTH)
+                        state = (int(nxt), round(s_in + change, 1))
                         if nxt >= 0 and self._driving[nxt] and state not in done:
                             piece = _Piece(int(nxt), s_in, s_in + change, opt, src=lane)
                             pushes.append((cost + change + extra, (int(nxt), s_in + change, lid, piece)))
