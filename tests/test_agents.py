@@ -33,9 +33,19 @@ class CameraAgent(Agent):
 
 
 def test_missing_observations_are_refused_at_setup() -> None:
+    ego_only = frozenset({Observation.EGO_STATE, Observation.PRIVILEGED})
     with pytest.raises(AgentSetupError, match=r"CameraAgent needs observations .*: camera"):
-        check_observations(CameraAgent())
-    check_observations(PidAgent())
+        check_observations(CameraAgent(), provided=ego_only)
+    check_observations(PidAgent(), provided=ego_only)
+    check_observations(CameraAgent())  # the evaluator provides cameras
+
+
+def test_visibility_needs_the_privileged_snapshot() -> None:
+    class Peeker(CameraAgent):
+        observations: ClassVar[frozenset[Observation]] = frozenset({Observation.VISIBILITY})
+
+    with pytest.raises(AgentSetupError, match="declare privileged too"):
+        check_observations(Peeker())
 
 
 def test_agents_load_by_import_path_with_clear_errors() -> None:

@@ -36,13 +36,16 @@ TARGET_SPACING = 50.0  # [m] at most between two sparse target points (leaderboa
 class Observation(str, Enum):
     """What an agent may ask for."""
 
-    EGO_STATE = "ego_state"  # pose, speed and acceleration of each active CAV
+    EGO_STATE = "ego_state"  # pose, speed and acceleration of each active CAV, other CAVs' relative poses
     PRIVILEGED = "privileged"  # the full snapshot every tick, plus the map and dense routes at setup
-    CAMERA = "camera"  # front camera images (a later issue)
-    OCCUPANCY = "occupancy"  # BEV occupancy maps (a later issue)
+    CAMERA = "camera"  # front camera images (n, H, W, 3) uint8
+    OCCUPANCY = "occupancy"  # each CAV's own BEV occupancy (n, C, H, W) bool, from what its camera sees
+    MERGED_OCCUPANCY = "merged_occupancy"  # own occupancy OR the partner's, warped (implies V2V)
+    V2V = "v2v"  # the partner of each CAV; the agent may name partners (Agent.next_partners)
+    VISIBILITY = "visibility"  # which snapshot actors each CAV's camera sees (with PRIVILEGED)
 
 
-PROVIDED: frozenset[Observation] = frozenset({Observation.EGO_STATE, Observation.PRIVILEGED})
+PROVIDED: frozenset[Observation] = frozenset(Observation)
 
 
 class AgentSetupError(ValueError):
@@ -82,7 +85,17 @@ class Observations:
     yaw: np.ndarray  # (n,) [rad]
     speed: np.ndarray  # (n,) [m/s]
     accel: np.ndarray  # (n,) [m/s^2]
+    # (n, K, 3) every CAV of the route in each active CAV's frame: x forward, y left [m], yaw [rad];
+    # NaN for the CAV itself and CAVs no longer driving (K = CAVs of the route)
+    other_cavs: np.ndarray | None = None
     snapshot: Snapshot | None = None  # the whole world, for privileged agents only
+    camera: np.ndarray | None = None  # (n, H, W, 3) uint8 front camera (CAMERA)
+    occupancy: np.ndarray | None = None  # (n, C, H, W) bool own occupancy, cmudrive.sensors conventions
+    merged_occupancy: np.ndarray | None = None  # (n, C, H, W) bool own OR warped partner (MERGED_OCCUPANCY)
+    partner: np.ndarray | None = None  # (n,) CAV index each CAV talks to this tick, -1 none (V2V)
+    partner_received: np.ndarray | None = None  # (n,) bool: the partner's map arrived (V2V)
+    visible: np.ndarray | None = None  # (n, A) bool over snapshot rows: seen by each CAV (VISIBILITY)
+    visible_scenery: np.ndarray | None = None  # (n, S) bool over the route's static scenery (VISIBILITY)
 
 
 class Agent(ABC):
@@ -98,12 +111,23 @@ class Agent(ABC):
     def run_step(self, obs: Observations) -> Controls:
         """Controls for every active CAV, arrays of shape (n,) in ``obs.cav_index`` order."""
 
+    def next_partners(self) -> np.ndarray | None:
+        """Partners the agent names for the next tick, after ``run_step``: (n,) CAV indices in the last
+        ``obs.cav_index`` order, -1 for the default (the closest CAV in front); None: defaults for all.
+        Only agents that declare V2V or MERGED_OCCUPANCY are asked."""
+        return None
+
     def destroy(self) -> None:  # noqa: B027 - optional hook, nothing to do by default
         """Called once when the route ends (also after a crash)."""
 
 
 def check_observations(agent: Agent, provided: frozenset[Observation] = PROVIDED) -> None:
     declared = frozenset(Observation(o) for o in type(agent).observations)
+    if Observation.VISIBILITY in declared and Observation.PRIVILEGED not in declared:
+        raise AgentSetupError(
+            f"agent {type(agent).__name__} asks for visibility, which indexes the privileged snapshot: "
+            "declare privileged too"
+        )
     missing = declared - provided
     if missing:
         names = ", ".join(sorted(o.value for o in missing))

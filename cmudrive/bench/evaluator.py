@@ -25,13 +25,13 @@ from cmudrive.agents.base import (
     PROVIDED,
     Agent,
     Observation,
-    Observations,
     RouteSetup,
     check_observations,
     sparse_plan,
 )
 from cmudrive.bench.criteria import CriteriaConfig, RouteCriteria
 from cmudrive.bench.metrics import comfort_score, route_result
+from cmudrive.bench.observe import ObservationBuilder, SensorConfig
 from cmudrive.bench.recording import RouteRecorder, infraction_event
 from cmudrive.bench.records import (
     STATUS_AGENT_CRASHED,
@@ -65,6 +65,7 @@ class EvalConfig:
     setup_timeout: float = 600.0  # [s] wall clock for the agent's setup (loading a model may take long)
     background: BackgroundConfig = field(default_factory=BackgroundConfig)
     criteria: CriteriaConfig = field(default_factory=CriteriaConfig)
+    sensors: SensorConfig = field(default_factory=SensorConfig)
     record_dir: Path | None = None  # write a replayable log per route here
 
     def __post_init__(self) -> None:
@@ -129,7 +130,8 @@ def evaluate_route(
         raise AgentCrash(f"the agent's constructor raised: {exc!r}") from exc
     hooks.enter("sim")
     check_observations(agent)
-    privileged = Observation.PRIVILEGED in type(agent).observations
+    declared = frozenset(Observation(o) for o in type(agent).observations)
+    privileged = Observation.PRIVILEGED in declared
     world_config = WorldConfig(town=str(town_path), seed=spec.seed, weather=spec.weather)
     with World(world_config, road_map=road_map) as world:
         for route in routes:
@@ -139,7 +141,14 @@ def evaluate_route(
         cav_ids = list(world.cav_ids)
         criteria = RouteCriteria(road_map, routes, cav_ids, config.criteria, DT)
         recorder = _recorder(spec, routes, config)
-        loop = _Loop(world, criteria, agent, privileged, config, recorder, hooks, spec)
+        observer = ObservationBuilder(
+            declared,
+            len(routes),
+            world.weather,
+            config=config.sensors,
+            rng=np.random.default_rng([spec.seed, 1]),  # sensors' own stream: traffic is unchanged
+        )
+        loop = _Loop(world, criteria, agent, observer, config, recorder, hooks, spec)
         error = None
         try:
             loop.setup(_setup(spec, road_map, routes, cav_ids, privileged))
@@ -174,6 +183,8 @@ def evaluate_route(
     result.wall_time = time.perf_counter() - started
     result.error = error
     result.scenario_simulated = False if spec.scenarios else None  # no scenario behaviour runs yet
+    if observer.link_stats is not None:
+        result.v2v = observer.link_stats.to_json()
     return result
 
 
@@ -223,14 +234,17 @@ class _Loop:
         world: World,
         criteria: RouteCriteria,
         agent: Agent,
-        privileged: bool,
+        observer: ObservationBuilder,
         config: EvalConfig,
         recorder: RouteRecorder | None,
         hooks: RouteHooks,
         spec: RouteSpec,
     ) -> None:
         self.world, self.criteria, self.agent = world, criteria, agent
-        self.privileged, self.config, self.recorder = privileged, config, recorder
+        self.observer, self.config, self.recorder = observer, config, recorder
+        self.privileged = Observation.PRIVILEGED in observer.declared
+        self.asks_partners = observer.network is not None
+        self.requested: np.ndarray | None = None  # partners the agent named at the last tick
         self.hooks, self.spec = hooks, spec
         n = len(world.cav_ids)
         self.trace = np.full((config.tick_cap + 1, n, 4), np.nan)  # x, y, yaw, speed per tick and CAV
@@ -281,21 +295,12 @@ class _Loop:
         criteria.end_route(STATUS_TICK_CAP)
 
     def _agent_step(self, snap: Snapshot, tick: int, rows: np.ndarray, index: np.ndarray) -> Controls:
-        obs = Observations(
-            tick=tick,
-            time=snap.time,
-            cav_index=index,
-            x=snap.x[rows],
-            y=snap.y[rows],
-            yaw=snap.yaw[rows],
-            speed=snap.speed[rows],
-            accel=snap.accel[rows],
-            snapshot=snap if self.privileged else None,
-        )
+        obs = self.observer.build(snap, tick, rows, index, self.privileged, self._requested_for(index))
         self.hooks.enter("agent")
         try:
             with _time_limit(self.config.step_timeout):
                 controls = self.agent.run_step(obs)
+                requested = self.agent.next_partners() if self.asks_partners else None
         except _StepTimeout as exc:
             raise AgentCrash(
                 f"run_step took longer than {self.config.step_timeout:.1f} s at tick {tick}"
@@ -305,7 +310,25 @@ class _Loop:
         self.hooks.enter("sim")
         if not isinstance(controls, Controls):
             raise AgentCrash(f"run_step returned {type(controls).__name__}, not Controls, at tick {tick}")
+        self.requested = self._check_partners(requested, index, tick)
         return controls
+
+    def _check_partners(self, requested: object, index: np.ndarray, tick: int) -> np.ndarray | None:
+        """The agent's named partners as a full (K,) table by CAV index (-1: default), or None."""
+        if requested is None:
+            return None
+        named = np.asarray(requested)
+        if named.shape != index.shape or not np.issubdtype(named.dtype, np.integer):
+            raise AgentCrash(
+                f"next_partners returned {named.dtype} of shape {named.shape} at tick {tick}; "
+                f"expected integer CAV indices of shape {index.shape}"
+            )
+        table = np.full(len(self.world.cav_ids), -1, np.int64)
+        table[index] = named
+        return table
+
+    def _requested_for(self, index: np.ndarray) -> np.ndarray | None:
+        return None if self.requested is None else self.requested[index]
 
     def _trace(self, snap: Snapshot, tick: int) -> None:
         rows, index = _active_cavs(snap, self.world)

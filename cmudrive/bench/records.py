@@ -99,6 +99,9 @@ class RouteResult:
     # False while the route's scenario behaviour is not simulated yet (the scenario engine has not landed:
     # the route is scored under its type, but no scenario actor ran); None for a route without scenario
     scenario_simulated: bool | None = None
+    # V2V link counters (messages, received, dropped, out_of_range, not_yet, bytes, bytes_per_message) for
+    # agents that take part in V2V; None otherwise
+    v2v: dict[str, float] | None = None
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
