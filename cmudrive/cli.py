@@ -312,15 +312,33 @@ def evaluate(
         list[Path] | None,
         typer.Option(help="folder of <town>.net.xml networks, searched after the route file's own folder"),
     ] = None,
+    v2v_range: Annotated[
+        float | None, typer.Option(help="V2V link: messages between CAVs farther apart (metres) are lost")
+    ] = None,
+    v2v_latency: Annotated[int, typer.Option(help="V2V link: latency in ticks of 0.05 s")] = 0,
+    v2v_pose_noise: Annotated[
+        tuple[float, float],
+        typer.Option(help="V2V link: sigma of the partner's received position (metres) and yaw (degrees)"),
+    ] = (0.0, 0.0),
+    v2v_drop: Annotated[float, typer.Option(help="V2V link: probability that a message is lost")] = 0.0,
+    detection_noise: Annotated[
+        tuple[float, float],
+        typer.Option(
+            help="occupancy: miss probability and position sigma (metres) of an object at the weather's range"
+        ),
+    ] = (0.0, 0.0),
 ) -> None:
     """Evaluate an agent on a route file; one JSON record per route as it finishes, merged results.json."""
     from rich.markup import escape
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TaskID, TextColumn, TimeElapsedColumn
 
     from cmudrive.bench.evaluator import EvalConfig
+    from cmudrive.bench.observe import SensorConfig
     from cmudrive.bench.records import RouteResult
     from cmudrive.bench.routes import read_routes
     from cmudrive.bench.runner import LocalExecutor, RayExecutor, run_evaluation
+    from cmudrive.sensors import DetectionNoise
+    from cmudrive.v2v import LinkConfig
 
     path = _routes_path(routes)
     try:
@@ -334,8 +352,18 @@ def evaluate(
     extra_dirs = tuple(str(d.resolve()) for d in town_dir or ())
     specs = [dataclasses.replace(s, town_dirs=s.town_dirs + extra_dirs) for s in specs]
     try:
+        sensors = SensorConfig(
+            noise=DetectionNoise(*detection_noise),
+            link=LinkConfig(v2v_range, v2v_latency, v2v_pose_noise[0], v2v_pose_noise[1], v2v_drop),
+        )
+    except ValueError as exc:
+        _fail(ValueError(f"--v2v-* / --detection-noise: {exc}"))
+    try:
         config = EvalConfig(
-            tick_cap=tick_cap, step_timeout=step_timeout, record_dir=out / "logs" if record else None
+            tick_cap=tick_cap,
+            step_timeout=step_timeout,
+            record_dir=out / "logs" if record else None,
+            sensors=sensors,
         )
     except ValueError as exc:
         _fail(ValueError(f"--step-timeout / --tick-cap: {exc}"))

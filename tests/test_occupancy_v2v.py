@@ -14,7 +14,16 @@ from cmudrive.sensors import (
     occupancy_to_rgb,
 )
 from cmudrive.sim import ActorKind, Snapshot
-from cmudrive.v2v import NO_PARTNER, LinkConfig, V2VNetwork, message_bytes, select_partners, warp_to_ego
+from cmudrive.v2v import (
+    NO_PARTNER,
+    LinkConfig,
+    V2VNetwork,
+    merge,
+    message_bytes,
+    select_partners,
+    warp_and_merge,
+    warp_to_ego,
+)
 
 CFG = OccupancyConfig()
 CAR, PED, BIKE = ActorKind.CAR, ActorKind.PEDESTRIAN, ActorKind.BICYCLE
@@ -238,3 +247,14 @@ def test_occupancy_image_colours_classes_and_the_ego():
     r, c = CFG.cell_of(np.array([20.0, 0.0]), np.array([0.0, 0.0]))
     assert tuple(img[0, r[0], c[0]]) == (70, 140, 255)  # vehicle blue
     assert tuple(img[0, r[1], c[1]]) == (80, 255, 120)  # ego green
+
+
+def test_fused_warp_and_merge_equals_warp_then_or():
+    rng = np.random.default_rng(4)
+    own = rng.random((3, 4, *CFG.shape)) < 0.03
+    partner = rng.random((3, 4, *CFG.shape)) < 0.03
+    pp, ep = rng.uniform(-20, 20, (3, 3)), rng.uniform(-20, 20, (3, 3))
+    has = np.array([True, False, True])
+    fused = warp_and_merge(own, partner, pp, ep, has)
+    assert (fused == merge(own, warp_to_ego(partner, pp, ep), has)).all()
+    assert (fused[1] == own[1]).all()

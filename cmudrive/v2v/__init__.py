@@ -10,7 +10,7 @@ Typical use, per tick for the ``n`` active CAVs::
 
 from cmudrive.v2v.link import Exchange, LinkConfig, LinkStats, V2VNetwork, message_bytes
 from cmudrive.v2v.partner import NO_PARTNER, PartnerConfig, select_partners
-from cmudrive.v2v.warp import merge, warp_to_ego
+from cmudrive.v2v.warp import merge, warp_and_merge, warp_to_ego
 
 __all__ = [
     "NO_PARTNER",
@@ -22,5 +22,6 @@ __all__ = [
     "merge",
     "message_bytes",
     "select_partners",
+    "warp_and_merge",
     "warp_to_ego",
 ]

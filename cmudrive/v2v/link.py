@@ -29,7 +29,7 @@ import numpy as np
 
 from cmudrive.sensors.occupancy import NUM_CLASSES, OccupancyConfig
 from cmudrive.v2v.partner import NO_PARTNER, PartnerConfig, select_partners
-from cmudrive.v2v.warp import merge, warp_to_ego
+from cmudrive.v2v.warp import warp_and_merge
 
 HEADER_BYTES = 16
 POSE_BYTES = 12
@@ -143,9 +143,8 @@ class V2VNetwork:
             sender_pose[i], sender_grid[i] = message
             received[i] = True
         self.stats.received += int(received.sum())
-        sender_pose = self._noisy(sender_pose)
-        warped = warp_to_ego(sender_grid, sender_pose, pose, self.occupancy)
-        return Exchange(partner, received, merge(own, warped, received))
+        merged = warp_and_merge(own, sender_grid, self._noisy(sender_pose), pose, received, self.occupancy)
+        return Exchange(partner, received, merged)
 
     def _message(self, sender: int, tick: int) -> tuple[np.ndarray, np.ndarray] | None:
         """The sender's (pose, grid) of tick ``tick - latency``, if it has one."""

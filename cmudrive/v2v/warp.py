@@ -29,13 +29,45 @@ def warp_to_ego(
 ) -> np.ndarray:
     """Partner grids (n, C, H, W) seen from ego poses: poses are (n, 3) x [m], y [m], yaw [rad] in the
     map frame; returns (n, C, H, W) bool in each ego's frame."""
-    config = config or OccupancyConfig()
-    partner_grid = np.asarray(partner_grid, np.bool_)
-    if partner_grid.ndim != 4 or partner_grid.shape[2:] != config.shape:
-        raise ValueError(f"partner grids have shape {partner_grid.shape}, expected (n, C, {config.shape})")
-    partner_pose = np.asarray(partner_pose, np.float64).reshape(-1, 3)
-    ego_pose = np.asarray(ego_pose, np.float64).reshape(-1, 3)
-    return _warp(partner_grid, partner_pose, ego_pose, config.resolution, config.ahead, config.side)
+    partner_grid, partner_pose, ego_pose = _checked(partner_grid, partner_pose, ego_pose, config)
+    out = np.zeros_like(partner_grid)
+    cfg = config or OccupancyConfig()
+    _warp_or(
+        partner_grid,
+        partner_pose,
+        ego_pose,
+        np.ones(len(out), np.bool_),
+        cfg.resolution,
+        cfg.ahead,
+        cfg.side,
+        out,
+    )
+    return out
+
+
+def warp_and_merge(
+    own: np.ndarray,
+    partner_grid: np.ndarray,
+    partner_pose: np.ndarray,
+    ego_pose: np.ndarray,
+    has_partner: np.ndarray,
+    config: OccupancyConfig | None = None,
+) -> np.ndarray:
+    """``merge(own, warp_to_ego(...), has_partner)`` in one pass over the grids (what the link runs)."""
+    partner_grid, partner_pose, ego_pose = _checked(partner_grid, partner_pose, ego_pose, config)
+    out = np.array(own, np.bool_, copy=True)
+    cfg = config or OccupancyConfig()
+    _warp_or(
+        partner_grid,
+        partner_pose,
+        ego_pose,
+        np.asarray(has_partner, np.bool_),
+        cfg.resolution,
+        cfg.ahead,
+        cfg.side,
+        out,
+    )
+    return out
 
 
 def merge(own: np.ndarray, warped: np.ndarray, has_partner: np.ndarray | None = None) -> np.ndarray:
@@ -46,13 +78,35 @@ def merge(own: np.ndarray, warped: np.ndarray, has_partner: np.ndarray | None = 
     return own | (warped & np.asarray(has_partner, bool)[:, None, None, None])
 
 
+def _checked(
+    grid: np.ndarray, partner_pose: np.ndarray, ego_pose: np.ndarray, config: OccupancyConfig | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    shape = (config or OccupancyConfig()).shape
+    grid = np.ascontiguousarray(grid, np.bool_)
+    if grid.ndim != 4 or grid.shape[2:] != shape:
+        raise ValueError(f"partner grids have shape {grid.shape}, expected (n, C, {shape[0]}, {shape[1]})")
+    partner_pose = np.asarray(partner_pose, np.float64).reshape(-1, 3)
+    ego_pose = np.asarray(ego_pose, np.float64).reshape(-1, 3)
+    if not len(partner_pose) == len(ego_pose) == len(grid):
+        raise ValueError(f"{len(grid)} grids, {len(partner_pose)} partner poses, {len(ego_pose)} ego poses")
+    return grid, partner_pose, ego_pose
+
+
 @numba.njit(cache=True)
-def _warp(
-    src: np.ndarray, src_pose: np.ndarray, dst_pose: np.ndarray, res: float, ahead: float, side: float
-) -> np.ndarray:
+def _warp_or(
+    src: np.ndarray,  # (n, C, H, W) partner grids
+    src_pose: np.ndarray,  # (n, 3)
+    dst_pose: np.ndarray,  # (n, 3)
+    use: np.ndarray,  # (n,) bool: warp this row
+    res: float,
+    ahead: float,
+    side: float,
+    out: np.ndarray,  # (n, C, H, W): the warped cells are ORed into it
+) -> None:
     n, c, h, w = src.shape
-    out = np.zeros((n, c, h, w), np.bool_)
     for i in range(n):
+        if not use[i]:
+            continue
         ce, se = np.cos(dst_pose[i, 2]), np.sin(dst_pose[i, 2])
         cp, sp = np.cos(src_pose[i, 2]), np.sin(src_pose[i, 2])
         # ego frame -> partner frame: p_p = R_p^T (R_e p_e + t_e - t_p) = A p_e + b
@@ -60,15 +114,14 @@ def _warp(
         a10, a11 = -sp * ce + cp * se, sp * se + cp * ce
         tx, ty = dst_pose[i, 0] - src_pose[i, 0], dst_pose[i, 1] - src_pose[i, 1]
         b0, b1 = cp * tx + sp * ty, -sp * tx + cp * ty
-        for r in range(h):
-            xe = ahead - (r + 0.5) * res
-            for col in range(w):
-                ye = side - (col + 0.5) * res
-                xp = a00 * xe + a01 * ye + b0
-                yp = a10 * xe + a11 * ye + b1
-                rp = int(np.floor((ahead - xp) / res))
-                cq = int(np.floor((side - yp) / res))
-                if 0 <= rp < h and 0 <= cq < w:
-                    for k in range(c):
-                        out[i, k, r, col] = src[i, k, rp, cq]
-    return out
+        for k in range(c):
+            if not src[i, k].any():  # most class layers are empty: skip them
+                continue
+            for r in range(h):
+                xe = ahead - (r + 0.5) * res
+                for col in range(w):
+                    ye = side - (col + 0.5) * res
+                    rp = int(np.floor((ahead - (a00 * xe + a01 * ye + b0)) / res))
+                    cq = int(np.floor((side - (a10 * xe + a11 * ye + b1)) / res))
+                    if 0 <= rp < h and 0 <= cq < w and src[i, k, rp, cq]:
+                        out[i, k, r, col] = True
