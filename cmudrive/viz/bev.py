@@ -371,13 +371,15 @@ class BevRenderer:
         routes: Sequence[np.ndarray | None] | None = None,
         highlight: Sequence[str] | np.ndarray | None = None,
         title: str | None = None,
+        links: Sequence[tuple[str, str]] | None = None,
     ) -> np.ndarray:
         """One frame (H, W, 3) uint8 of ``snap``.
 
         ``center`` ([m], or an actor id to follow) and ``size_m`` [m] crop a square window (whole map when
         both are None); ``routes[i]`` is an (n, 2) polyline [m] drawn in the colour of CAV ``i``;
         ``highlight`` (actor ids, an (A,) bool mask or indices) rings actors in white; ``title`` and the
-        simulation time are written in the top-left corner.
+        simulation time are written in the top-left corner; ``links`` (pairs of actor ids, e.g. a CAV and
+        its V2V partner) are drawn as arrows from the first to the second in the first one's colour.
         """
         if isinstance(center, str):
             i = snap.index_of(center)
@@ -389,6 +391,8 @@ class BevRenderer:
         if routes:
             self._draw_routes(draw, routes, view)
         self._draw_actors(image, draw, snap, view, ring=self._highlight_mask(snap, highlight))
+        if links:
+            self._draw_links(draw, snap, links, view)
         text = f"t = {snap.time:.2f} s" if self.show_time else ""
         if title:
             text = f"{title}   {text}" if text else title
@@ -434,6 +438,33 @@ class BevRenderer:
             draw.line(pts.ravel().tolist(), fill=colour, width=width, joint="curve")
             ex, ey = pts[-1].tolist()
             draw.ellipse((ex - r, ey - r, ex + r, ey + r), fill=colour, outline=_DARK_RGB)
+
+    def _draw_links(
+        self, draw: ImageDraw.ImageDraw, snap: Snapshot, links: Sequence[tuple[str, str]], view: BevView
+    ) -> None:
+        """An arrow per (from, to) pair of actor ids, ending short of the receiver's centre, coloured as
+        the first actor when it is a CAV ("cavK"), white otherwise; pairs with an id not in ``snap`` are
+        skipped."""
+        index = {str(a): i for i, a in enumerate(snap.ids)}
+        width = max(2, round(0.35 * self.pixels_per_meter))
+        head = 4.0 * width
+        for a, b in links:
+            if a not in index or b not in index:
+                continue
+            p = view.to_pixel(snap.xy[[index[a], index[b]]]) - 0.5
+            d = p[1] - p[0]
+            length = float(np.hypot(*d))
+            if length < 2.0 * head:
+                continue
+            u = d / length
+            tip = p[1] - u * 0.5 * float(snap.width[index[b]]) * self.pixels_per_meter
+            colour = (
+                _rgb(cav_colour(int(a[3:]))) if a.startswith("cav") and a[3:].isdigit() else (255, 255, 255)
+            )
+            draw.line([*p[0].tolist(), *tip.tolist()], fill=colour, width=width)
+            normal = np.array([-u[1], u[0]])
+            wing = [tip - u * head + normal * 0.5 * head, tip, tip - u * head - normal * 0.5 * head]
+            draw.polygon([tuple(w.tolist()) for w in wing], fill=colour)
 
     @staticmethod
     def _highlight_mask(snap: Snapshot, highlight: Sequence[str] | np.ndarray | None) -> np.ndarray:
