@@ -81,7 +81,7 @@ def test_every_town_has_buildings_and_its_roads_furniture(
     # physical sizes
     building = scenery.kind == SceneryKind.BUILDING
     assert np.all((scenery.height[building] >= 4.0) & (scenery.height[building] <= 30.0))
-    assert np.all(scenery.length[building] >= 7.0) and np.all(scenery.width[building] >= 7.0)
+    assert np.all(scenery.length[building] >= 6.99) and np.all(scenery.width[building] >= 6.99)
     pole = scenery.kind == SceneryKind.POLE
     assert np.allclose(scenery.length[pole], 0.3) and np.all(scenery.height[pole] >= 6.0)
     rail = scenery.kind == SceneryKind.GUARDRAIL

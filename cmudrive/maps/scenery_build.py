@@ -9,12 +9,14 @@ matters (``docs/scenery.md``), so :func:`build_scenery` places it by rule, deter
   at the end and dropped when it comes closer.
 - **Buildings** line the boundary of the road area: the holes of its union are the blocks between roads,
   the outer boundary is the edge of the town. Walking along each boundary ring with the road on the left,
-  buildings of random frontage and depth stand on the right, set back 2-4 m behind the outer edge (of the
-  sidewalk, or of the outermost lane where a road has none), with gaps between them. Beside fast roads
-  (speed limit >= ``fast_speed``) they stand 10-20 m back, and only some slots are built (farms, depots).
-  Heights follow the street: 6-30 m beside streets with two or more driving lanes per direction and a
-  sidewalk (downtown), 6-14 m beside other streets with a sidewalk, 4-10 m elsewhere. A second pass of
-  small buildings fills corners that the first one left empty.
+  slots of random frontage (10-30 m) and gap (3-8 m) follow each other, and a building of random depth
+  (10-20 m) stands on the right of each straight slot, set back 2-4 m behind the outer edge (of the
+  sidewalk, or of the outermost lane where a road has none). The street beside a slot (its nearest lane's
+  edge) sets the rest: beside streets with a sidewalk and two or more driving lanes (downtown) the whole
+  slot is built, 6-30 m high; beside other streets with a sidewalk, houses stand in gardens (55-85 % of
+  the slot, at most 8-12 m deep, 6-14 m high); beside roads without a sidewalk half of the slots are built
+  (4-10 m high); beside fast roads (speed limit >= ``fast_speed``, no sidewalk) a third, 10-20 m back. A
+  second pass of small buildings (7-10 m) fills corners and short blocks that the first one left empty.
 - **Street lights** (0.3 m square poles, 6-8 m high) stand every 25-40 m just outside the outer edge of
   every sidewalk.
 - **Guardrails** run along fast roads without a sidewalk, as chains of thin boxes (``rail_segment`` long)
@@ -61,6 +63,8 @@ class SceneryConfig:
     gap: tuple[float, float] = (3.0, 8.0)  # [m] between neighbouring buildings along the road
     small_frontage: tuple[float, float] = (7.0, 10.0)  # [m] the second, corner-filling pass
     small_depth: tuple[float, float] = (7.0, 10.0)  # [m]
+    house_share: tuple[float, float] = (0.55, 0.85)  # of the slot's frontage, beside non-downtown streets
+    house_depth: tuple[float, float] = (8.0, 12.0)  # [m] at most, beside non-downtown streets
     building_gap_min: float = 2.0  # [m] accepted buildings keep at least this far apart
     height_downtown: tuple[float, float] = (6.0, 30.0)  # [m] sidewalk and >= 2 lanes per direction
     height_town: tuple[float, float] = (6.0, 14.0)  # [m] other streets with a sidewalk
@@ -344,6 +348,13 @@ def _buildings(
     )
     share = np.where(fast, cfg.fast_build_share, np.where(downtown | town, 1.0, cfg.rural_build_share))
     built = rng.random(n) < share
+    # beside streets that are not downtown, houses stand in gardens: a shorter, shallower box in the slot
+    slot = np.hypot(*(b - a).T)
+    shrink = np.where(town, rng.uniform(*cfg.house_share, n), 1.0)
+    shrink = np.maximum(shrink, np.minimum(cfg.small_frontage[0] / np.maximum(slot, 1e-9), 1.0))
+    depth = np.where(town, np.minimum(depth, rng.uniform(*cfg.house_depth, n)), depth)
+    centre = 0.5 * (a + b)
+    a, b = centre + (a - centre) * shrink[:, None], centre + (b - centre) * shrink[:, None]
     direction = (b - a) / np.maximum(np.hypot(*(b - a).T), 1e-9)[:, None]
     right = np.column_stack([direction[:, 1], -direction[:, 0]])  # the land side
     shift = right * (setback + 0.5 * depth)[:, None]
