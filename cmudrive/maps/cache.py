@@ -94,10 +94,8 @@ def load_scenery(
     """The static scenery of a town, a network file or a loaded :class:`RoadMap` (built by
     :func:`cmudrive.maps.scenery_build.build_scenery` once per map and seed, then read from the cache)."""
     road_map = town_or_path if isinstance(town_or_path, RoadMap) else load_map(town_or_path, search=search)
-    from cmudrive.maps.scenery_build import build_scenery  # shapely is imported only to build
-
     if not use_cache:
-        return build_scenery(road_map, seed)
+        return _build_scenery(road_map, seed)
     key = f"{road_map.source_sha256[:32]}-s{seed}-{_builder_version(_SCENERY_MODULES)}"
     cached = cache_dir() / f"{road_map.name}-scenery-{key}.npz"
     if cached.is_file():
@@ -106,9 +104,15 @@ def load_scenery(
                 return StaticScenery.from_arrays({k: data[k] for k in data.files})
         except Exception as exc:  # a corrupt cache entry is rebuilt, never trusted
             warnings.warn(f"ignoring unreadable scenery cache {cached}: {exc}", stacklevel=2)
-    scenery = build_scenery(road_map, seed)
+    scenery = _build_scenery(road_map, seed)
     _save(scenery.arrays(), cached)
     return scenery
+
+
+def _build_scenery(road_map: RoadMap, seed: int) -> StaticScenery:
+    from cmudrive.maps.scenery_build import build_scenery  # shapely is imported only to build
+
+    return build_scenery(road_map, seed)
 
 
 @functools.cache
