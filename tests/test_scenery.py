@@ -122,6 +122,22 @@ def test_no_box_comes_near_a_lane_or_junction(
     assert len(hit) == 0, f"{len(np.unique(hit))} boxes within {CLEARANCE} m of a lane, e.g. {hit[:5]}"
 
 
+@pytest.mark.parametrize("town", TOWNS)
+def test_a_car_centred_on_any_driving_lane_touches_no_scenery(
+    town: str, maps: dict[str, RoadMap], sceneries: dict[str, StaticScenery]
+) -> None:
+    """A CAV-sized box every metre along every driving lane (junction lanes too), at the lane's heading."""
+    m = maps[town]
+    index = m.index
+    lane = index.seg_lane[index.sample_seg]
+    driving = m.lane_kind[lane] == LaneKind.DRIVING
+    xy, yaw = index.sample_xy[driving], index.seg_heading[index.sample_seg][driving]
+    n = len(xy)
+    boxes = box_table(xy[:, 0], xy[:, 1], yaw, np.full(n, CAV_LENGTH), np.full(n, CAV_WIDTH))
+    row, _ = scenery_contacts(boxes, SceneryIndex.build(sceneries[town]))
+    assert len(row) == 0, f"cars on lanes {np.unique(m.lane_ids[lane[driving][row]])[:5]} touch scenery"
+
+
 def test_buildings_do_not_overlap_each_other(sceneries: dict[str, StaticScenery]) -> None:
     s = sceneries["downtown"]
     boxes = shapely.polygons(s.corners()[s.kind == SceneryKind.BUILDING])
@@ -143,7 +159,7 @@ def test_same_seed_same_arrays_other_seed_other_town(maps: dict[str, RoadMap]) -
 def test_cache_round_trips(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, maps: dict[str, RoadMap]) -> None:
     monkeypatch.setenv("CMUDRIVE_CACHE", str(tmp_path))
     built = load_scenery("Town02")
-    files = list((tmp_path / "maps").glob("Town02-scenery-*.npz"))
+    files = list((tmp_path / "maps" / "scenery").glob("Town02-*.npz"))
     assert len(files) == 1
     again = load_scenery(maps["Town02"])  # a RoadMap: the same key
     for name, value in built.arrays().items():

@@ -97,7 +97,7 @@ def load_scenery(
     if not use_cache:
         return _build_scenery(road_map, seed)
     key = f"{road_map.source_sha256[:32]}-s{seed}-{_builder_version(_SCENERY_MODULES)}"
-    cached = cache_dir() / f"{road_map.name}-scenery-{key}.npz"
+    cached = cache_dir() / "scenery" / f"{road_map.name}-{key}.npz"  # apart from the map entries
     if cached.is_file():
         try:
             with np.load(cached, allow_pickle=False) as data:
