@@ -28,7 +28,7 @@ from cmudrive.bench.records import (
     STATUS_TIMEOUT,
     CavResult,
 )
-from cmudrive.maps import RoadMap
+from cmudrive.maps import RoadMap, StaticScenery
 from cmudrive.maps.routing import LanePos, Route, RoutePlanner
 from cmudrive.sim.collisions import detect_collisions
 from cmudrive.sim.snapshot import ActorKind, Role, Snapshot
@@ -86,7 +86,10 @@ class Scene:
 
     def __post_init__(self) -> None:
         self.ids = [f"cav{i}" for i in range(len(self.routes))]
-        self.criteria = RouteCriteria(self.mini, self.routes, self.ids, self.config, DT)
+        # no static scenery: these scenes test the other criteria (layout collisions: test_scenery.py)
+        self.criteria = RouteCriteria(
+            self.mini, self.routes, self.ids, self.config, DT, scenery=StaticScenery.empty()
+        )
 
     def tick(
         self,

@@ -1,4 +1,4 @@
-"""Load a map by town name or path, converting it once and caching the arrays.
+"""Load a map (and its static scenery) by town name or path, converting it once and caching the arrays.
 
 The cache key is the SHA-256 of the network file plus a hash of the code that builds the arrays
 (``model.py``, ``loader.py``, ``index.py``), so an edited network or a changed map model never reads
@@ -6,6 +6,9 @@ stale arrays. Cache files are ``.npz`` (no pickles) written to a temporary
 name and renamed into place, so an interrupted conversion leaves nothing half-written. The cache folder is
 ``$CMUDRIVE_CACHE/maps`` (default ``~/.cache/cmudrive/maps``); if it cannot be written the map is still
 returned, just not cached.
+
+Static scenery (:func:`load_scenery`) is cached the same way, keyed by the network's hash, the seed and a
+hash of the scenery code (``scenery.py``, ``scenery_build.py`` and the map builder's modules).
 """
 
 from __future__ import annotations
@@ -23,8 +26,10 @@ import numpy as np
 from cmudrive.maps.errors import MapError
 from cmudrive.maps.loader import file_sha256, read_sumo_net
 from cmudrive.maps.model import RoadMap
+from cmudrive.maps.scenery import StaticScenery
 
 _BUILDER_MODULES = ("model.py", "loader.py", "index.py")  # the code whose output is cached
+_SCENERY_MODULES = (*_BUILDER_MODULES, "scenery.py", "scenery_build.py")
 NET_SUFFIX = ".net.xml"
 
 
@@ -76,25 +81,55 @@ def load_map(town_or_path: str | Path, use_cache: bool = True, search: Sequence[
         except Exception as exc:  # a corrupt cache entry is rebuilt, never trusted
             warnings.warn(f"ignoring unreadable map cache {cached}: {exc}", stacklevel=2)
     road_map = read_sumo_net(path, name=name)
-    _save(road_map, cached)
+    _save(road_map.arrays(), cached)
     return road_map
 
 
+def load_scenery(
+    town_or_path: str | Path | RoadMap,
+    seed: int = 0,
+    use_cache: bool = True,
+    search: Sequence[str | Path] = (),
+) -> StaticScenery:
+    """The static scenery of a town, a network file or a loaded :class:`RoadMap` (built by
+    :func:`cmudrive.maps.scenery_build.build_scenery` once per map and seed, then read from the cache)."""
+    road_map = town_or_path if isinstance(town_or_path, RoadMap) else load_map(town_or_path, search=search)
+    if not use_cache:
+        return _build_scenery(road_map, seed)
+    key = f"{road_map.source_sha256[:32]}-s{seed}-{_builder_version(_SCENERY_MODULES)}"
+    cached = cache_dir() / "scenery" / f"{road_map.name}-{key}.npz"  # apart from the map entries
+    if cached.is_file():
+        try:
+            with np.load(cached, allow_pickle=False) as data:
+                return StaticScenery.from_arrays({k: data[k] for k in data.files})
+        except Exception as exc:  # a corrupt cache entry is rebuilt, never trusted
+            warnings.warn(f"ignoring unreadable scenery cache {cached}: {exc}", stacklevel=2)
+    scenery = _build_scenery(road_map, seed)
+    _save(scenery.arrays(), cached)
+    return scenery
+
+
+def _build_scenery(road_map: RoadMap, seed: int) -> StaticScenery:
+    from cmudrive.maps.scenery_build import build_scenery  # shapely is imported only to build
+
+    return build_scenery(road_map, seed)
+
+
 @functools.cache
-def _builder_version() -> str:
+def _builder_version(modules: tuple[str, ...] = _BUILDER_MODULES) -> str:
     digest = hashlib.sha256()
-    for module in _BUILDER_MODULES:
+    for module in modules:
         digest.update((Path(__file__).parent / module).read_bytes())
     return digest.hexdigest()[:12]
 
 
-def _save(road_map: RoadMap, target: Path) -> None:
+def _save(arrays: dict[str, np.ndarray], target: Path) -> None:
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{target.stem}.", suffix=".npz", dir=target.parent)
         try:
             with os.fdopen(fd, "wb") as fh:
-                np.savez(fh, **road_map.arrays())  # type: ignore[arg-type]
+                np.savez(fh, **arrays)  # type: ignore[arg-type]
             os.replace(tmp, target)
         finally:
             if os.path.exists(tmp):

@@ -15,7 +15,8 @@ Pixel convention: north up, x to the right. A frame covers the world rectangle o
 with ``ppm`` pixels per metre. ``BevView.pixel_index`` maps world points to (row, col).
 
 Colours: the road plan as in :mod:`cmudrive.viz.map_plot` (grey asphalt, beige pavements, white and
-yellow markings, zebra crossings, red octagons at stop signs, light green ground); traffic lights as bars
+yellow markings, zebra crossings, red octagons at stop signs, light green ground; static scenery: buildings
+grey-brown, guardrails light grey lines, street lights dark dots); traffic lights as bars
 on their stop lines in the current signal colour (red, amber, green; grey when off or unknown), split
 into one part per signal when a lane's movements have their own; CAVs in 16 distinct bright colours,
 labelled with their index ("0".."15"); background vehicles grey-blue (trucks, vans and buses a darker
@@ -28,9 +29,10 @@ rear while braking.
 from __future__ import annotations
 
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import cached_property
+from typing import TYPE_CHECKING
 
 import matplotlib
 import numpy as np
@@ -42,15 +44,22 @@ from matplotlib.figure import Figure
 from PIL import Image, ImageDraw, ImageFont
 
 from cmudrive.maps.model import RoadMap, StopKind, TurnDir
+from cmudrive.maps.scenery import SceneryKind, StaticScenery
 from cmudrive.sim.snapshot import ActorKind, Role, Snapshot
 from cmudrive.viz.map_plot import (
     BACKGROUND,
+    BUILDING_EDGE,
     JUNCTION_COLOUR,
+    SCENERY_COLOURS,
     junction_polygons,
     lane_polygons,
     marking_lines,
+    scenery_shapes,
     signal_colour,
 )
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
 
 RGB = tuple[int, int, int]
 
@@ -71,6 +80,8 @@ STOP_SIGN_OFFSET = 1.0  # [m] beyond the right end of the stop line
 STOP_SIGN_COLOUR = "#c4161c"
 SIGNAL_BAR_WIDTH = 0.8  # [m] along the lane
 SIGNAL_BAR_GAP = 0.2  # [m] between the parts of one stop line
+POLE_RADIUS = 0.3  # [m] street lights are drawn as dots at least this large (and at least 1.5 px)
+RAIL_WIDTH = 0.4  # [m] guardrail line width (at least 1 px), a little wider than the box
 
 CAV_COLOURS: tuple[str, ...] = (
     "#2196f3",  # 0 blue
@@ -204,9 +215,12 @@ class BevRenderer:
         show_time: bool = True,
         scale_bar: bool = True,
         font_px: int = 13,  # [px]
+        scenery: StaticScenery | bool = True,
     ) -> None:
         """``bounds`` (xmin, ymin, xmax, ymax [m]) limits the pre-rendered area (default: the whole map
-        plus a margin); ``show_time`` and ``scale_bar`` switch the overlays; ``font_px`` sizes all text."""
+        plus a margin); ``show_time`` and ``scale_bar`` switch the overlays; ``font_px`` sizes all text;
+        ``scenery`` is the static scenery drawn on the map (True: the map's own,
+        :func:`cmudrive.maps.load_scenery`; False: none)."""
         if pixels_per_meter <= 0:
             raise ValueError(f"pixels_per_meter must be positive, got {pixels_per_meter}")
         self.road_map = road_map
@@ -228,6 +242,11 @@ class BevRenderer:
                 "px/m; pass a lower pixels_per_meter, or `bounds` to render a part of it"
             )
         self.full_view = BevView(xmin, ymax, width, height, self.pixels_per_meter)
+        if scenery is True:
+            from cmudrive.maps.cache import load_scenery
+
+            scenery = load_scenery(road_map)
+        self.scenery = scenery if isinstance(scenery, StaticScenery) else StaticScenery.empty()
         self.background = self._draw_background(markings)  # (H, W, 3) uint8
         self.background.flags.writeable = False
         self._bg_rgb = _rgb(BACKGROUND)
@@ -270,11 +289,31 @@ class BevRenderer:
                     self._stop_signs(), facecolors=STOP_SIGN_COLOUR, edgecolors="white", linewidths=lw(0.1)
                 )
             )
+            self._draw_scenery(ax, lw)
             canvas.draw()
         rgba = np.asarray(canvas.buffer_rgba())
         if rgba.shape[:2] != (view.height, view.width):  # pragma: no cover - guards the dpi arithmetic
             raise RuntimeError(f"background is {rgba.shape[:2]}, expected {(view.height, view.width)}")
         return np.ascontiguousarray(rgba[..., :3])
+
+    def _draw_scenery(self, ax: Axes, lw: Callable[[float], float]) -> None:
+        """Buildings filled grey-brown, guardrails as lines, street lights as dark dots."""
+        areas, colours, poles, rails = scenery_shapes(self.scenery)
+        ax.add_collection(
+            PolyCollection(areas, facecolors=colours, edgecolors=BUILDING_EDGE, linewidths=lw(0.2))
+        )
+        ax.add_collection(
+            LineCollection(rails, colors=SCENERY_COLOURS[SceneryKind.GUARDRAIL], linewidths=lw(RAIL_WIDTH))
+        )
+        if len(poles):
+            radius = max(POLE_RADIUS * self.pixels_per_meter, 1.5)  # [px] = [pt] at 72 dpi
+            ax.scatter(
+                poles[:, 0],
+                poles[:, 1],
+                s=(2.0 * radius) ** 2,
+                c=SCENERY_COLOURS[SceneryKind.POLE],
+                linewidths=0,
+            )
 
     def _stop_signs(self) -> list[np.ndarray]:
         """Octagons (8, 2) [m] beside the right end of every stop-sign and all-way-stop line."""

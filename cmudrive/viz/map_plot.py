@@ -25,6 +25,7 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
 from cmudrive.maps.model import LaneKind, RoadMap, StopKind
+from cmudrive.maps.scenery import SceneryKind, StaticScenery
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -51,6 +52,15 @@ SIGNAL_COLOURS = {
 }
 SIGNAL_UNKNOWN = "#999999"  # off ('o', 'O') or an unknown state character
 ZEBRA_PERIOD = 1.0  # [m] stripe + gap along a crossing
+SCENERY_COLOURS = {  # fill colours of static scenery footprints
+    SceneryKind.BUILDING: "#a89580",  # grey-brown
+    SceneryKind.WALL: "#8c8173",
+    SceneryKind.POLE: "#3b3b3b",
+    SceneryKind.GUARDRAIL: "#4f5a63",  # dark slate, to stand out beside the white edge line
+    SceneryKind.TREE: "#3f7a3a",
+    SceneryKind.OBJECT: "#7a6a8c",
+}
+BUILDING_EDGE = "#6e5f50"
 
 
 def signal_colour(char: str) -> str:
@@ -109,6 +119,49 @@ def lane_polygons(m: RoadMap) -> tuple[list[np.ndarray], list[str], list[np.ndar
             polys.append(poly)
             colours.append(LANE_COLOURS[kind])
     return polys, colours, zebra
+
+
+class SceneryShapes(NamedTuple):
+    """Static scenery as drawing primitives [m]."""
+
+    areas: list[np.ndarray]  # (4, 2) footprints of buildings, walls, trees, objects
+    area_colours: list[str]
+    poles: np.ndarray  # (p, 2) centres of poles
+    rails: list[np.ndarray]  # (2, 2) guardrail segments, end to end along the box's length axis
+
+
+def scenery_shapes(scenery: StaticScenery) -> SceneryShapes:
+    """Buildings (and other footprints) as filled quadrilaterals, poles as points, guardrails as lines."""
+    corners = scenery.corners()  # (S, 4, 2)
+    pole = scenery.kind == SceneryKind.POLE
+    rail = scenery.kind == SceneryKind.GUARDRAIL
+    area = ~pole & ~rail
+    half = (
+        0.5
+        * scenery.length[rail, None]
+        * np.column_stack([np.cos(scenery.yaw[rail]), np.sin(scenery.yaw[rail])])
+    )
+    centre = np.column_stack([scenery.x[rail], scenery.y[rail]])
+    rails = list(np.stack([centre - half, centre + half], axis=1))
+    colours = [SCENERY_COLOURS[SceneryKind(int(k))] for k in scenery.kind[area]]
+    return SceneryShapes(
+        list(corners[area]), colours, np.column_stack([scenery.x[pole], scenery.y[pole]]), rails
+    )
+
+
+def draw_scenery(scenery: StaticScenery, ax: Axes) -> None:
+    """Draw static scenery above the road plan (buildings filled, poles as dots, guardrails as lines)."""
+    areas, colours, poles, rails = scenery_shapes(scenery)
+    ax.add_collection(
+        PolyCollection(areas, facecolors=colours, edgecolors=BUILDING_EDGE, linewidths=0.3, zorder=5)
+    )
+    ax.add_collection(
+        LineCollection(rails, colors=SCENERY_COLOURS[SceneryKind.GUARDRAIL], linewidths=0.8, zorder=5)
+    )
+    if len(poles):
+        ax.scatter(
+            poles[:, 0], poles[:, 1], s=1.5, c=SCENERY_COLOURS[SceneryKind.POLE], linewidths=0, zorder=5
+        )
 
 
 class Markings(NamedTuple):
@@ -214,6 +267,8 @@ def legend_handles() -> list[Patch | Line2D]:
         Patch(color=LANE_COLOURS[LaneKind.SIDEWALK], label="sidewalk"),
         Patch(color=LANE_COLOURS[LaneKind.PARKING], label="parking lane"),
         Patch(color=LANE_COLOURS[LaneKind.BIKE], label="bike lane"),
+        Patch(color=SCENERY_COLOURS[SceneryKind.BUILDING], label="building"),
+        Line2D([], [], color=SCENERY_COLOURS[SceneryKind.GUARDRAIL], label="guardrail"),
         Line2D([], [], color="#f2c40c", label="centre line (two-way)"),
         Line2D(
             [],
@@ -237,14 +292,31 @@ def legend_handles() -> list[Patch | Line2D]:
 
 
 def save_map_figure(
-    m: RoadMap, out: str | Path, route: Route | None = None, title: str | None = None, dpi: int = 200
+    m: RoadMap,
+    out: str | Path,
+    route: Route | None = None,
+    title: str | None = None,
+    dpi: int = 200,
+    scenery: StaticScenery | bool = True,
 ) -> Path:
-    """Render ``m`` (and ``route``) to a PNG; the figure scales with the map so lanes stay legible."""
+    """Render ``m`` (and ``route``) to a PNG; the figure scales with the map so lanes stay legible.
+    ``scenery``: the static scenery to draw, True for the map's own (:func:`cmudrive.maps.load_scenery`),
+    False for none."""
+    if scenery is True:
+        from cmudrive.maps.cache import load_scenery
+
+        scenery = load_scenery(m)
     xmin, ymin, xmax, ymax = m.bounds
     width, height = max(xmax - xmin, 1.0), max(ymax - ymin, 1.0)
     scale = min(24.0 / width, 24.0 / height, 0.05)  # inches per metre
     fig, ax = plt.subplots(figsize=(max(width * scale, 6.0), max(height * scale, 6.0)))
     draw_map(m, ax)
+    if isinstance(scenery, StaticScenery) and len(scenery):
+        draw_scenery(scenery, ax)
+        corners = scenery.corners().reshape(-1, 2)
+        pad = 10.0  # [m], as draw_map's
+        ax.set_xlim(min(xmin, corners[:, 0].min()) - pad, max(xmax, corners[:, 0].max()) + pad)
+        ax.set_ylim(min(ymin, corners[:, 1].min()) - pad, max(ymax, corners[:, 1].max()) + pad)
     if route is not None:
         draw_route(ax, route)
     ax.set_title(title or f"{m.name}")

@@ -4,9 +4,9 @@
 each CAV, its route completion RC_i, its infractions (``cmudrive.bench.records``: keys, penalty factors,
 status strings) and whether its evaluation has ended; :class:`CriteriaConfig` (``config``) holds every
 threshold with its unit. One module per criterion: ``progress`` (route index, completion, deviation,
-timeout budget), ``collisions``, ``red_lights`` and ``stop_signs`` (on ``stop_lines``), ``lanes``
-(outside route lanes), ``min_speed``. All of them work on arrays over the route's CAVs; nothing loops over
-background actors. ``docs/scoring.md`` carries the same table.
+timeout budget), ``collisions`` and ``layout`` (static scenery), ``red_lights`` and ``stop_signs`` (on
+``stop_lines``), ``lanes`` (outside route lanes), ``min_speed``. All of them work on arrays over the
+route's CAVs; nothing loops over background actors. ``docs/scoring.md`` carries the same table.
 
 Defaults (Bench2Drive) and how each rule is implemented, with every place where it differs from CARLA's
 scenario_runner / leaderboard criteria:
@@ -37,6 +37,12 @@ Collisions           collisions_pedestrian 0.5, collisions_vehicle   2D oriented
                      pedestrian, PROP layout, anything else (cars,   location rules; we use SCORING.md's 5 m.
                      trucks, bicycles, motorcycles, emergency
                      vehicles, other CAVs) vehicle.
+
+Layout collisions    collisions_layout 0.65. A running CAV's box     CARLA: physics contacts with the town's
+(static scenery)     against the map's static scenery boxes          meshes. Ours: boxes derived from the map
+                     (``layout``: cKDTree broad phase, the SAT of    (``docs/scenery.md``), without height;
+                     actor collisions), counted under the same       the CAV passes through instead of
+                     rules; actor ``scenery:<kind>:<index>``.        stopping.
 
 Red light            red_light 0.7. The rear segment runs from 0.8   SUMO link signals and the lanes' stop
                      x half length behind the centre to 1 m behind   lines replace light actors and their

@@ -9,9 +9,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from cmudrive.bench.criteria.collisions import CollisionMemory, cav_contacts, collision_key
+from cmudrive.bench.criteria.collisions import LAYOUT_KEY, CollisionMemory, cav_contacts, collision_key
 from cmudrive.bench.criteria.config import CriteriaConfig
 from cmudrive.bench.criteria.lanes import lane_state
+from cmudrive.bench.criteria.layout import SceneryIndex, box_table, scenery_contacts
 from cmudrive.bench.criteria.min_speed import MinSpeedMonitor, background_vehicles
 from cmudrive.bench.criteria.progress import RouteTable, advance, distance_to_route
 from cmudrive.bench.criteria.red_lights import RedLightCheck
@@ -32,6 +33,7 @@ from cmudrive.bench.records import (
 from cmudrive.maps.index import LaneProjection
 from cmudrive.maps.model import RoadMap
 from cmudrive.maps.routing import Route
+from cmudrive.maps.scenery import StaticScenery
 from cmudrive.sim.collisions import CollisionEvents
 from cmudrive.sim.snapshot import Role, Snapshot
 
@@ -46,7 +48,9 @@ class RouteCriteria:
     """Criteria of all CAVs of one route.
 
     ``routes[i]`` is the dense route of the CAV with snapshot id ``cav_ids[i]``; ``dt`` [s] is the tick
-    length, the clock of the blocked and route-timeout tests. Call :meth:`update` once per tick after the
+    length, the clock of the blocked and route-timeout tests. ``scenery`` holds the static objects a CAV
+    can hit (layout collisions); by default the map's own (:func:`cmudrive.maps.load_scenery`, built once
+    per map and cached), ``StaticScenery.empty()`` for none. Call :meth:`update` once per tick after the
     snapshot and collisions, remove :meth:`newly_finished` CAVs from the world, and :meth:`end_route` when
     the route stops early (tick cap, crash); :meth:`results` gives the scores at any point.
     """
@@ -58,6 +62,7 @@ class RouteCriteria:
         cav_ids: list[str],
         config: CriteriaConfig = CriteriaConfig(),  # noqa: B008 (frozen, so sharing the default is safe)
         dt: float = 0.05,
+        scenery: StaticScenery | None = None,
     ) -> None:
         if len(routes) != len(cav_ids) or not routes:
             raise ValueError(f"need one route per CAV and at least one CAV: {len(routes)} routes, {cav_ids}")
@@ -74,6 +79,11 @@ class RouteCriteria:
         self._table = RouteTable.build(routes, config.route_timeout_speed_fraction)
         stops = StopLineTable.build(road_map, config.stop_line_width_factor)
         self._collisions = CollisionMemory(n, config)
+        if scenery is None:
+            from cmudrive.maps.cache import load_scenery
+
+            scenery = load_scenery(road_map)
+        self._scenery = SceneryIndex.build(scenery)
         self._red_lights = RedLightCheck(road_map, stops, routes, config)
         self._stop_signs = StopSignCheck(stops, n, config)
         self._min_speed = MinSpeedMonitor(self._table.length, config)
@@ -112,6 +122,7 @@ class RouteCriteria:
 
         self._collisions.forget_far(cav, xy)
         self._count_collisions(snap, collisions, rows, cav)
+        self._count_layout(snap, rows, cav)
         nearest, centre_lane, tail_lane = self._lanes_under(xy, yaw, forward, half)
         self._check_signals(cav, xy, forward, half, speed, centre_lane, tail_lane, snap.tls_state)
         off_route = self._progress(cav, xy, yaw, speed, nearest, snap)
@@ -216,6 +227,22 @@ class RouteCriteria:
             x, y = self._xy[i]
             message = f"Agent collided against {kind_name} {snap.ids[o]} at (x={x:.1f}, y={y:.1f})"
             self._record(i, key, message, actor=str(snap.ids[o]))
+
+    def _count_layout(self, snap: Snapshot, rows: np.ndarray, cav: np.ndarray) -> None:
+        """Contacts of the running CAVs with static scenery: ``collisions_layout``."""
+        boxes = box_table(snap.x[rows], snap.y[rows], snap.yaw[rows], snap.length[rows], snap.width[rows])
+        hit, obj = scenery_contacts(boxes, self._scenery)
+        if len(hit) == 0:
+            return
+        who, row = cav[hit], rows[hit]
+        names = np.array([self._scenery.name(j) for j in obj.tolist()])  # a handful of contacts at most
+        cav_xy = np.column_stack([snap.x[row], snap.y[row]])
+        counted = self._collisions.count(who, names, cav_xy, snap.speed[row], self._time)
+        for i, name in zip(who[counted].tolist(), names[counted].tolist(), strict=True):
+            x, y = self._xy[i]
+            kind = name.split(":")[1]
+            message = f"Agent collided against the static {kind} {name} at (x={x:.1f}, y={y:.1f})"
+            self._record(i, LAYOUT_KEY, message, actor=name)
 
     def _end_conditions(self, cav: np.ndarray, xy: np.ndarray, off_route: np.ndarray) -> None:
         cfg, table = self.config, self._table
