@@ -41,7 +41,7 @@ from cmudrive.bench.records import (
     record_stem,
 )
 from cmudrive.bench.routes import RouteSpec
-from cmudrive.maps import MapError, RoadMap, Route, load_map
+from cmudrive.maps import MapError, RoadMap, Route, load_map, load_scenery
 from cmudrive.sim.background import BackgroundActivity, BackgroundConfig
 from cmudrive.sim.dynamics import ControlError, Controls
 from cmudrive.sim.snapshot import Role, Snapshot
@@ -139,12 +139,14 @@ def evaluate_route(
         world.background = BackgroundActivity(config.background)
         world.background.populate(world)
         cav_ids = list(world.cav_ids)
-        criteria = RouteCriteria(road_map, routes, cav_ids, config.criteria, DT)
+        scenery = load_scenery(road_map)  # what CAVs can hit and what hides actors from cameras
+        criteria = RouteCriteria(road_map, routes, cav_ids, config.criteria, DT, scenery=scenery)
         recorder = _recorder(spec, routes, config)
         observer = ObservationBuilder(
             declared,
             len(routes),
             world.weather,
+            scenery,
             config=config.sensors,
             rng=np.random.default_rng([spec.seed, 1]),  # sensors' own stream: traffic is unchanged
         )
