@@ -122,9 +122,11 @@ def test_own_vehicle_is_not_drawn(camera: FrontCamera):
     )
 
 
-def _before_light(m: RoadMap, distance: float) -> tuple[Snapshot, int]:
-    """The ego ``distance`` [m] upstream of a traffic-light stop line, on its lane; that line's light."""
-    k = int(np.flatnonzero(m.stop_kind == StopKind.TRAFFIC_LIGHT)[0])
+def _before_light(
+    m: RoadMap, distance: float, kind: StopKind = StopKind.TRAFFIC_LIGHT
+) -> tuple[Snapshot, int]:
+    """The ego ``distance`` [m] upstream of a stop line of ``kind``, on its lane; that line's light."""
+    k = int(np.flatnonzero(m.stop_kind == kind)[0])
     xy = m.polyline(int(m.stop_lane[k]))
     d = (xy[-1] - xy[-2]) / np.linalg.norm(xy[-1] - xy[-2])
     p = xy[-1] - distance * d
@@ -143,6 +145,13 @@ def test_traffic_light_ahead_shows_its_state(camera: FrontCamera, downtown: Road
     lit, dark = (red, green) if char == "r" else (green, red)
     assert lit[:CY].sum() >= 2  # lamps above the horizon (heads hang 2.3-3.3 m high)
     assert not dark.any()
+
+
+def test_stop_sign_ahead_shows_a_red_plate(camera: FrontCamera, downtown: RoadMap):
+    snap, _ = _before_light(downtown, 12.0, StopKind.ALLWAY_STOP)  # downtown's stops are all-way stops
+    img = camera.render(snap, np.array([0]), WEATHERS["ClearNoon"])[0].astype(int)
+    red = (img[..., 0] > 150) & (img[..., 1] < 50) & (img[..., 2] < 50)
+    assert red[:CY, CONFIG.width // 2 :].sum() >= 4  # on the right, above the horizon (2.2 m high)
 
 
 def scene_ego(m: RoadMap) -> Snapshot:

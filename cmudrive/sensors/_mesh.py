@@ -219,12 +219,13 @@ def polygon_triangles(poly: np.ndarray, z: float) -> np.ndarray:
     return out
 
 
-def boxes(x, y, yaw, length, width, z0, z1, colour, flags: int = 0) -> Triangles:
-    """Oriented boxes (B,) as 10 triangles each (4 sides and the top), faces shaded by a fixed light;
-    every argument is a scalar or an array over boxes, ``colour`` (B, 3) or (3,)."""
-    x, y, yaw, length, width, z0, z1 = np.broadcast_arrays(
-        *(np.atleast_1d(np.asarray(v, np.float64)) for v in (x, y, yaw, length, width, z0, z1))
+def boxes(x, y, yaw, length, width, z0, z1, colour, flags=0) -> Triangles:
+    """Oriented boxes (B,) as 10 triangles each (4 sides and the top), faces shaded by a fixed light
+    (emissive ones not); every argument is a scalar or an array over boxes, ``colour`` (B, 3) or (3,)."""
+    x, y, yaw, length, width, z0, z1, flags = np.broadcast_arrays(
+        *(np.atleast_1d(np.asarray(v, np.float64)) for v in (x, y, yaw, length, width, z0, z1, flags))
     )
+    flags = flags.astype(np.uint8)
     nb = len(x)
     c, s = np.cos(yaw), np.sin(yaw)
     lon = np.array([1.0, 1.0, -1.0, -1.0])[None, :] * (0.5 * length)[:, None]
@@ -243,12 +244,9 @@ def boxes(x, y, yaw, length, width, z0, z1, colour, flags: int = 0) -> Triangles
     shade[:, 4] = 1.0
     shade = np.concatenate([shade, shade], axis=1)  # (B, 10), as _FACE_TRIS
     col = np.broadcast_to(np.asarray(colour, np.float32).reshape(-1, 3), (nb, 3))
-    if flags & FLAG_EMISSIVE:
-        shade[:] = 1.0
+    shade[(flags & FLAG_EMISSIVE) != 0] = 1.0
     tri_col = (col[:, None, :] * shade[:, :, None]).astype(np.float32).reshape(-1, 3)
-    return Triangles(
-        xyz.reshape(-1, 3, 3), tri_col, np.full(nb * 10, flags, np.uint8), np.ones(nb * 10, np.float32)
-    )
+    return Triangles(xyz.reshape(-1, 3, 3), tri_col, np.repeat(flags, 10), np.ones(nb * 10, np.float32))
 
 
 # ---------------------------------------------------------------------------------------- the map
@@ -378,15 +376,23 @@ def signal_triangles(m: RoadMap) -> tuple[Triangles, Triangles, SignalLamps]:
 
 
 def lamp_colours(lamps: SignalLamps, tls_state: np.ndarray) -> np.ndarray:
-    """(M, 3) float32 colour of every lamp for the lights' current state strings."""
-    out = np.tile(np.asarray(LAMP_OFF, np.float32), (len(lamps.tls), 1))
-    for j in range(len(lamps.tls)):
-        t, sig = int(lamps.tls[j]), int(lamps.signal[j])
-        state = str(tls_state[t]) if 0 <= t < len(tls_state) else ""
-        char = state[sig] if 0 <= sig < len(state) else "O"
-        if LAMP_OF_STATE.get(char, -1) == lamps.colour[j]:
-            out[j] = LAMP_ON[int(lamps.colour[j])]
-    return out
+    """(M, 3) float32 colour of every lamp for the lights' current state strings (one per light)."""
+    states = [str(t) for t in tls_state]
+    lengths = np.array([len(t) for t in states] + [0], np.int64)
+    start = np.concatenate([[0], np.cumsum(lengths)])
+    chars = np.frombuffer(("".join(states) + "O").encode("ascii"), np.uint8)
+    known = (lamps.tls >= 0) & (lamps.tls < len(states))
+    tls = np.where(known, lamps.tls, len(states))  # unknown lights read the trailing "O" (off)
+    valid = known & (lamps.signal >= 0) & (lamps.signal < lengths[tls])
+    char = chars[np.where(valid, start[tls] + lamps.signal, len(chars) - 1)]
+    lit = _LAMP_OF_CHAR[char] == lamps.colour
+    return np.where(lit[:, None], _LAMP_ON_RGB[lamps.colour], np.asarray(LAMP_OFF, np.float32))
+
+
+_LAMP_OF_CHAR = np.full(256, -1, np.int64)  # ASCII signal character -> lamp it lights
+for _char, _lamp in LAMP_OF_STATE.items():
+    _LAMP_OF_CHAR[ord(_char)] = _lamp
+_LAMP_ON_RGB = np.array([LAMP_ON[k] for k in range(3)], np.float32)
 
 
 # ---------------------------------------------------------------------------------------- actors
@@ -420,33 +426,21 @@ def actor_triangles(snap: Snapshot, rows: np.ndarray) -> tuple[Triangles, np.nda
     height, tidx = actor_heights(kind, length, width)
     seed = id_hash(snap.ids[rows])
     paint = VEHICLE_PAINTS[seed % len(VEHICLE_PAINTS)]
-    idx = np.arange(len(rows))
-    parts: list[tuple[np.ndarray, Triangles]] = []  # (owner per box, triangles)
+    columns: list[list[np.ndarray]] = [[] for _ in range(10)]  # owner, x, y, yaw, l, w, z0, z1, colour, flags
+    n = len(rows)
 
     def add(sel: np.ndarray, lon, lw, ww, z0, z1, colour, flags: int = 0) -> None:
-        """Boxes for actors ``sel``: centre ``lon`` [m] ahead of the actor centre, length/width factors."""
-        if not sel.any():
-            return
+        """Boxes for actors ``sel``: centre ``lon`` [m] ahead of the actor centre, length ``lw`` and
+        width ``ww`` [m], from ``z0`` to ``z1`` [m]; scalars or arrays over all actors."""
         s = np.flatnonzero(sel)
-        lon = np.broadcast_to(lon, (len(rows),))[s]
-        col = np.asarray(colour, np.float32)
-        col = col[s] if col.ndim == 2 else col
-        parts.append(
-            (
-                idx[s],
-                boxes(
-                    x[s] + lon * np.cos(yaw[s]),
-                    y[s] + lon * np.sin(yaw[s]),
-                    yaw[s],
-                    np.broadcast_to(lw, (len(rows),))[s],
-                    np.broadcast_to(ww, (len(rows),))[s],
-                    np.broadcast_to(z0, (len(rows),))[s],
-                    np.broadcast_to(z1, (len(rows),))[s],
-                    col,
-                    flags,
-                ),
-            )
-        )
+        if len(s) == 0:
+            return
+        lon = np.broadcast_to(lon, (n,))[s]
+        col = np.broadcast_to(np.asarray(colour, np.float32).reshape(-1, 3), (n, 3))[s]
+        values = [s, x[s] + lon * np.cos(yaw[s]), y[s] + lon * np.sin(yaw[s]), yaw[s]]
+        values += [np.broadcast_to(v, (n,))[s] for v in (lw, ww, z0, z1)]
+        for column, v in zip(columns, [*values, col, np.full(len(s), flags, np.uint8)], strict=True):
+            column.append(v)
 
     prop_name = np.array([_TYPES[t].name for t in tidx]) if len(rows) else np.zeros(0, str)
     small_prop = (kind == ActorKind.PROP) & np.isin(prop_name, list(PROP_COLOURS))
@@ -503,11 +497,10 @@ def actor_triangles(snap: Snapshot, rows: np.ndarray) -> tuple[Triangles, np.nda
         -1, 3
     )
     add(small_prop, 0.0, length, width, 0.0, height, prop_col)
-    if not parts:
-        return Triangles.concat([]), np.zeros(len(rows) + 1, np.int64)
-    owner = np.concatenate([np.repeat(o, 10) for o, _ in parts])
-    tris = Triangles.concat([t for _, t in parts])
-    order = np.argsort(owner, kind="stable")
-    tris = Triangles(tris.xyz[order], tris.colour[order], tris.flags[order], tris.keep[order])
-    ptr = np.concatenate([[0], np.cumsum(np.bincount(owner, minlength=len(rows)))]).astype(np.int64)
+    if not columns[0]:
+        return Triangles.concat([]), np.zeros(n + 1, np.int64)
+    owner, *box = (np.concatenate(c) for c in columns)
+    order = np.argsort(owner, kind="stable")  # boxes grouped by actor
+    tris = boxes(*(v[order] for v in box))
+    ptr = np.concatenate([[0], np.cumsum(10 * np.bincount(owner, minlength=n))]).astype(np.int64)
     return tris, ptr

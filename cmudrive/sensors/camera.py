@@ -40,7 +40,7 @@ import numpy as np
 from cmudrive.maps.model import RoadMap
 from cmudrive.maps.scenery import StaticScenery
 from cmudrive.sensors import _mesh
-from cmudrive.sensors._raster import rasterise, shade
+from cmudrive.sensors._raster import render_batch
 from cmudrive.sim.snapshot import Snapshot
 from cmudrive.sim.weather import Weather
 
@@ -102,13 +102,12 @@ def weather_look(w: Weather, config: CameraConfig) -> _Look:
         top, horizon = np.array([0.01, 0.015, 0.04]), np.array([0.05, 0.06, 0.10])
     else:
         brightness = 0.35 + 0.65 * w.light_level
-        low_sun = max(0.0, 1.0 - w.sun_altitude_deg / 25.0) * (
-            1.0 - 0.6 * cloud
-        )  # warm light near sunrise/set
+        warm = min(max(1.0 - w.sun_altitude_deg / 20.0, 0.0), 1.0)  # low sun: warm light, orange horizon
+        low_sun = min(1.6 * warm * (1.0 - 0.4 * cloud), 1.0)
         tint = tint + low_sun * np.array([0.05, -0.12, -0.30])
-        horizon = horizon + low_sun * (np.array([1.0, 0.66, 0.40]) - horizon)
-        top = top + 0.5 * low_sun * (np.array([0.32, 0.36, 0.58]) - top)
-        top, horizon = top * brightness, np.clip(horizon * (0.4 + 0.6 * brightness), 0.0, 1.0)
+        horizon = horizon + low_sun * (np.array([0.98, 0.62, 0.36]) - horizon)
+        top = top + 0.5 * low_sun * (np.array([0.34, 0.40, 0.62]) - top)
+        top, horizon = top * (0.5 + 0.5 * brightness), np.clip(horizon * (0.5 + 0.5 * brightness), 0.0, 1.0)
     # haze: extinction so that contrast falls to 5 % at the meteorological visibility (Koschmieder,
     # 3 / V); fog_density 70 (dense fog) -> V = 35 m; rain adds spray and mist
     fog_vis = 2450.0 / w.fog_density if w.fog_density > 0 else math.inf
@@ -122,7 +121,7 @@ def weather_look(w: Weather, config: CameraConfig) -> _Look:
     params = np.array(
         [
             beta,
-            250.0,  # [m] distance at which the sky takes the haze
+            100.0,  # [m] distance at which the sky takes the haze
             w.wetness / 100.0,
             headlights,
             30.0,  # [m] headlight range: intensity halves here
@@ -239,51 +238,26 @@ class FrontCamera:
         if len(self._lamp_tris):
             colour = colour.copy()
             colour[self._lamp_tris] = _mesh.lamp_colours(self._lamps, snapshot.tls_state)[:, None, :]
-        rgb = np.empty((n, c.height, c.width, 3), np.float32)
-        depth = np.empty((n, c.height, c.width), np.float32)
-        flags = np.empty((n, c.height, c.width), np.uint8)
-        f = c.focal
-        intr = np.array([f, f, 0.5 * c.width, 0.5 * c.height, c.near, c.max_range])
         g, a = self._grid, actor_tris
-        rasterise(
-            self.poses(snapshot, cav_rows),
-            skip,
-            intr,
-            math.radians(0.5 * c.fov_deg),
-            look.sky_top,
-            look.sky_horizon,
-            look.grass,
-            g.tris.xyz,
-            colour,
-            g.tris.flags,
-            g.tris.keep,
-            g.cell_ptr,
-            g.cell_xy,
-            g.cell_reach,
-            g.grid,
-            a.xyz,
-            a.colour,
-            a.flags,
-            a.keep,
-            actor_ptr,
-            actor_xy,
-            reach,
-            rgb,
-            depth,
-            flags,
-        )
+        f = c.focal
         seeds = (_mesh.id_hash(snapshot.ids[cav_rows]) * 7919 + snapshot.step) & 0x7FFFFFFF
         out = np.empty((n, c.height, c.width, 3), np.uint8)
-        shade(
-            rgb,
-            depth,
-            flags,
-            self._ray_len,
-            look.light,
-            look.sky_horizon,
+        depth = np.empty((n, c.height, c.width), np.float32)
+        render_batch(
+            self.poses(snapshot, cav_rows),
+            skip,
+            np.array([f, f, 0.5 * c.width, 0.5 * c.height]),
+            np.array([c.near, c.max_range, math.radians(0.5 * c.fov_deg)]),
+            (g.tris.xyz, colour, g.tris.flags, g.tris.keep),
+            (g.cell_ptr, g.cell_xy, g.cell_reach),
+            g.grid,
+            (a.xyz, a.colour, a.flags, a.keep),
+            (actor_ptr, actor_xy, reach),
+            (look.sky_top, look.sky_horizon, look.grass, look.light),
             look.params,
-            intr[:4],
+            self._ray_len,
             seeds.astype(np.int64),
             out,
+            depth,
         )
         return out, depth
