@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -115,7 +117,7 @@ def test_object_crossing_the_camera_plane_is_clipped_not_lost(camera: FrontCamer
 
 def test_own_vehicle_is_not_drawn(camera: FrontCamera):
     snap = scene(car_ahead(15.0))
-    without_ego = Snapshot(**{**snap.__dict__, "valid": np.array([False, True])})
+    without_ego = replace(snap, valid=np.array([False, True]))
     weather = WEATHERS["ClearNoon"]
     np.testing.assert_array_equal(
         camera.render(snap, np.array([0]), weather), camera.render(without_ego, np.array([0]), weather)
@@ -137,7 +139,7 @@ def _before_light(
 def test_traffic_light_ahead_shows_its_state(camera: FrontCamera, downtown: RoadMap, char: str):
     base, _ = _before_light(downtown, 12.0)
     states = np.array([char * len(s) for s in downtown.phase_state[downtown.tls_phase_ptr[:-1]]])
-    snap = Snapshot(**{**base.__dict__, "tls_state": states})
+    snap = replace(base, tls_state=states)
     img = camera.render(snap, np.array([0]), WEATHERS["ClearNoon"])[0].astype(int)
     r, g, b = img[..., 0], img[..., 1], img[..., 2]
     red = (r > 200) & (g < 90) & (b < 90)

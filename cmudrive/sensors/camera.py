@@ -17,8 +17,9 @@ arrays directly, renders all cameras of a tick in one call (``prange`` over came
 deterministic and needs nothing beyond numba. The map's triangles are built once and bucketed in a grid
 of ``cell_size`` cells, so a camera only visits the cells within ``max_range`` that can be in its
 horizontal field of view; triangles crossing the camera plane are clipped at ``near``. Measured: 16
-cameras of 256 x 128 on downtown with ~170 actors take ~7-9 ms per tick on 2 cores (6 ms of it in the
-kernel single-threaded); the first call compiles for ~7 s, later processes load the cache in < 0.3 s.
+cameras of 256 x 128 on downtown with ~170 actors take ~4.5-5 ms per tick on 2 quiet cores, ~10 ms
+while other jobs share them (``benchmarks/sensors.py``, docs/camera.md); the first call compiles for
+~7 s, later processes load numba's cache in < 0.3 s.
 
 Conventions: map frame x east, y north, z up [m]. Camera frame (OpenCV) x right, y down, z forward
 [m]; pixel (row r, col c) has its centre at (u, v) = (c + 0.5, r + 0.5), u = fx x / z + cx,
