@@ -42,6 +42,7 @@ SURFACE_COLOURS: dict[LaneKind, tuple[float, float, float]] = {
     LaneKind.PARKING: (0.38, 0.38, 0.42),
     LaneKind.SHOULDER: (0.42, 0.41, 0.39),
 }
+KERB = (0.60, 0.59, 0.56)
 WHITE_PAINT = (0.88, 0.88, 0.86)
 YELLOW_PAINT = (0.86, 0.70, 0.12)
 
@@ -180,6 +181,14 @@ def strip(xy: np.ndarray, half_width: float, z: float, offset: float = 0.0) -> n
     return _quads(xy + (offset + half_width) * n, xy + (offset - half_width) * n, z)
 
 
+def _wall(xy: np.ndarray, z0: float, z1: float) -> np.ndarray:
+    """Triangles (2 (n - 1), 3, 3) of a vertical wall along a polyline (n, 2) from z0 to z1 [m]."""
+    bottom = np.hstack([xy, np.full((len(xy), 1), z0)])
+    top = np.hstack([xy, np.full((len(xy), 1), z1)])
+    a, b, c, d = bottom[:-1], bottom[1:], top[1:], top[:-1]
+    return np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+
+
 def _dashes(xy: np.ndarray, half_width: float, dash: float, gap: float, z: float) -> np.ndarray:
     """Straight dashes (2 triangles each) of length ``dash`` every ``dash + gap`` along a polyline."""
     if len(xy) < 2:
@@ -275,6 +284,10 @@ def ground_triangles(m: RoadMap) -> Triangles:
         tris = polygon_triangles(xy, z) if kind == LaneKind.WALKINGAREA else strip(xy, half, z)
         flags = 0 if raised else FLAG_ROAD
         parts.append(Triangles.make(tris, SURFACE_COLOURS[kind], flags, 1.0 if raised else ROAD_KEEP))
+        if kind == LaneKind.SIDEWALK and len(xy) >= 2:  # kerb faces along both edges
+            n = _normals(xy)
+            kerbs = [_wall(xy + side * half * n, 0.0, SIDEWALK_Z) for side in (1.0, -1.0)]
+            parts.append(Triangles.make(np.concatenate(kerbs), KERB))
     solid, dashed, centre, stop = marking_lines(m)
     paint: list[tuple[np.ndarray, tuple[float, float, float]]] = []
     paint += [(strip(p, 0.5 * EDGE_LINE_WIDTH, MARK_Z), WHITE_PAINT) for p in solid]
