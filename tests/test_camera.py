@@ -52,8 +52,9 @@ def scene(*actors: dict, ego: dict | None = None, tls_state: np.ndarray | None =
     keys = sorted({k for r in rows for k in r})
     defaults = {"yaw": 0.0, "kind": ActorKind.CAR, "role": Role.BACKGROUND, "length": 4.5, "width": 1.85}
     cols = {k: np.array([r.get(k, defaults.get(k, 0.0)) for r in rows]) for k in keys}
-    for k in ("kind", "role"):
-        cols[k] = cols[k].astype(np.int8)
+    for k, dtype in (("kind", np.int8), ("role", np.int8), ("signals", np.int32), ("lane", np.int32)):
+        if k in cols:
+            cols[k] = cols[k].astype(dtype)
     state = np.zeros(0, str) if tls_state is None else tls_state
     return Snapshot.from_rows(0, 0.0, state, **cols)
 

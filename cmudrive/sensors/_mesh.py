@@ -75,9 +75,14 @@ GLASS = (0.10, 0.13, 0.16)
 REAR_LAMP = (0.55, 0.02, 0.02)
 BRAKE_LAMP = (1.0, 0.08, 0.05)
 FRONT_LAMP = (1.0, 0.95, 0.80)
-EMERGENCY_PAINT = {False: (0.92, 0.92, 0.92), True: (0.10, 0.12, 0.30)}  # ambulance-white / police-blue
 SIREN = (0.15, 0.35, 1.0)
-PROP_COLOURS = {"cone": (1.0, 0.45, 0.0), "warning_sign": (1.0, 0.78, 0.0)}
+TYPE_PAINTS = {  # actor types with a fixed colour instead of a paint chosen by id
+    "ambulance": (0.92, 0.92, 0.92),
+    "police": (0.10, 0.12, 0.30),
+    "cone": (1.0, 0.45, 0.0),
+    "warning_sign": (1.0, 0.78, 0.0),
+}
+SMALL_PROPS = ("cone", "warning_sign")  # drawn as one plain box
 
 # scenery
 SCENERY_COLOURS = {
@@ -413,6 +418,9 @@ _TYPES = list(ACTOR_TYPES.values())
 _TYPE_KIND = np.array([int(t.kind) for t in _TYPES])
 _TYPE_EXTENT = np.array([(t.length, t.width) for t in _TYPES])
 _TYPE_HEIGHT = np.array([t.height for t in _TYPES])
+_TYPE_FIXED_PAINT = np.array([t.name in TYPE_PAINTS for t in _TYPES])
+_TYPE_PAINT = np.array([TYPE_PAINTS.get(t.name, (0.0, 0.0, 0.0)) for t in _TYPES], np.float32)
+_TYPE_SMALL_PROP = np.array([t.name in SMALL_PROPS for t in _TYPES])
 
 
 def actor_heights(kind: np.ndarray, length: np.ndarray, width: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -422,7 +430,7 @@ def actor_heights(kind: np.ndarray, length: np.ndarray, width: np.ndarray) -> tu
         + (width[:, None] - _TYPE_EXTENT[None, :, 1]) ** 2
         + 1e6 * (kind[:, None] != _TYPE_KIND[None, :])
     )
-    best = np.argmin(cost, axis=1) if len(kind) else np.zeros(0, np.int64)
+    best = np.argmin(cost, axis=1) if len(kind) else np.zeros(0, np.int64)  # argmin of (0, T) raises
     return _TYPE_HEIGHT[best], best
 
 
@@ -438,7 +446,9 @@ def actor_triangles(snap: Snapshot, rows: np.ndarray) -> tuple[Triangles, np.nda
     length, width = snap.length[rows], snap.width[rows]
     height, tidx = actor_heights(kind, length, width)
     seed = id_hash(snap.ids[rows])
-    paint = VEHICLE_PAINTS[seed % len(VEHICLE_PAINTS)]
+    paint = np.where(
+        _TYPE_FIXED_PAINT[tidx, None], _TYPE_PAINT[tidx], VEHICLE_PAINTS[seed % len(VEHICLE_PAINTS)]
+    )
     columns: list[list[np.ndarray]] = [[] for _ in range(10)]  # owner, x, y, yaw, l, w, z0, z1, colour, flags
     n = len(rows)
 
@@ -455,18 +465,12 @@ def actor_triangles(snap: Snapshot, rows: np.ndarray) -> tuple[Triangles, np.nda
         for column, v in zip(columns, [*values, col, np.full(len(s), flags, np.uint8)], strict=True):
             column.append(v)
 
-    prop_name = np.array([_TYPES[t].name for t in tidx]) if len(rows) else np.zeros(0, str)
-    small_prop = (kind == ActorKind.PROP) & np.isin(prop_name, list(PROP_COLOURS))
-    car_like = np.isin(kind, [ActorKind.CAR, ActorKind.VAN, ActorKind.EMERGENCY]) | (
-        (kind == ActorKind.PROP) & ~small_prop
+    small_prop = _TYPE_SMALL_PROP[tidx]
+    car_like = (
+        np.isin(kind, [ActorKind.CAR, ActorKind.VAN, ActorKind.EMERGENCY, ActorKind.PROP]) & ~small_prop
     )
     big = np.isin(kind, [ActorKind.TRUCK, ActorKind.BUS])
     emergency = kind == ActorKind.EMERGENCY
-    paint = np.where(
-        emergency[:, None],
-        np.array([EMERGENCY_PAINT[bool(h < 2.0)] for h in height]).reshape(-1, 3) if len(rows) else paint,
-        paint,
-    ).astype(np.float32)
     vehicle = car_like | big
     # wheels / underbody, body, cabin (glass), rear and front lamp bars
     add(vehicle, 0.0, 0.82 * length, width, 0.0, 0.4, TYRES)
@@ -506,10 +510,7 @@ def actor_triangles(snap: Snapshot, rows: np.ndarray) -> tuple[Triangles, np.nda
     add(ped, 0.0, 0.8 * length, width, 0.52 * height, 0.86 * height, CLOTHES[seed % len(CLOTHES)])
     add(ped, 0.0, 0.45 * length, 0.4 * width, 0.86 * height, height, SKIN)
     # small props (cones, warning signs)
-    prop_col = np.array([PROP_COLOURS.get(str(n), (0.5, 0.5, 0.5)) for n in prop_name], np.float32).reshape(
-        -1, 3
-    )
-    add(small_prop, 0.0, length, width, 0.0, height, prop_col)
+    add(small_prop, 0.0, length, width, 0.0, height, paint)
     if not columns[0]:
         return Triangles.concat([]), np.zeros(n + 1, np.int64)
     owner, *box = (np.concatenate(c) for c in columns)
