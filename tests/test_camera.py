@@ -83,6 +83,16 @@ def test_car_straight_ahead_is_centred_and_halves_in_height_with_twice_the_dista
     assert heights[0] == pytest.approx(CONFIG.focal * (2.0 / 10.0 - 0.5 / 14.5), abs=2.0)
 
 
+def test_a_car_to_the_left_appears_left_of_centre_where_the_pinhole_puts_it(camera: FrontCamera):
+    """Heading east, +y (north) is to the left: no mirror image. A pole-thin pedestrian 20 m ahead and
+    4 m left projects to u = cx - f 4 / 20."""
+    ped = {"dx": CONFIG.mount_x + 20.0, "dy": 4.0, "kind": ActorKind.PEDESTRIAN, "length": 0.5, "width": 0.6}
+    _, mask = drawn(camera, scene(ped))
+    cols = np.nonzero(mask)[1]
+    expected = CONFIG.width / 2 - CONFIG.focal * 4.0 / 20.0
+    assert abs(0.5 * (cols.min() + cols.max() + 1) - expected) <= 1.5
+
+
 def test_depth_is_distance_along_the_optical_axis(camera: FrontCamera):
     _, depth = camera.render_with_depth(scene(car_ahead(10.0)), np.array([0]), WEATHERS["ClearNoon"])
     centre = depth[0, CY + 10, CONFIG.width // 2]  # on the car's rear face
@@ -238,7 +248,9 @@ def test_batch_of_16_equals_each_camera_alone_and_is_deterministic(downtown: Roa
     batch, depth = cam.render_with_depth(snap, rows, weather)
     assert batch.shape == (16, 64, 128, 3) and batch.dtype == np.uint8 and depth.shape == (16, 64, 128)
     for i in rows:
-        np.testing.assert_array_equal(batch[i], cam.render(snap, np.array([i]), weather)[0])
+        alone, alone_depth = cam.render_with_depth(snap, np.array([i]), weather)
+        np.testing.assert_array_equal(batch[i], alone[0])
+        np.testing.assert_array_equal(depth[i], alone_depth[0])
     np.testing.assert_array_equal(batch, cam.render(snap, rows, weather))
     # and the same from a camera built anew
     again = FrontCamera(CameraConfig(width=128, height=64), downtown, scenery)
