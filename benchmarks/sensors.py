@@ -1,13 +1,14 @@
 """Sensor budget: the 16 front cameras of a tick, rendered in one batched call.
 
-    python benchmarks/sensors.py [--town downtown] [--ticks 100] [--pictures docs/img]
+    python benchmarks/sensors.py [--town downtown] [--ticks 100] [--pictures docs/img] [--grid PNG]
 
 Scene: a real world on a committed town, 16 CAVs on the lane-following autopilot among background
 traffic (~100 vehicles, ~50 pedestrians around them), run for a warm-up, then ``--ticks`` snapshots
 recorded. Timed: ``FrontCamera.render`` of all 16 CAVs per snapshot (actor meshes, rasterising,
 weather pass), after one JIT warm-up call; the first call's time (numba compile, or cache load) is
 printed separately. ``--pictures`` also renders one camera view per weather preset at a junction into
-that folder (``camera_<Weather>.png`` and the strip ``camera_weathers.png``).
+that folder (``camera_<Weather>.png`` and the strip ``camera_weathers.png``); ``--grid`` saves all CAVs'
+cameras of one tick.
 
 The last line is ``ms_per_tick_16cams=<median ms per tick>``.
 """
@@ -152,6 +153,22 @@ def save_pictures(camera: FrontCamera, snap: Snapshot, out: Path, scale: int = 3
     return paths
 
 
+def save_grid(camera: FrontCamera, snap: Snapshot, path: Path, scale: int = 2) -> Path:
+    """Every CAV's camera of one tick (ClearNoon), four to a row."""
+    from PIL import Image
+
+    images = camera.render(snap, snap.cav_rows()[0], get_weather("ClearNoon"))
+    n, h, w, _ = images.shape
+    cols = min(n, 4)
+    grid = np.zeros((-(-n // cols) * h, cols * w, 3), np.uint8)
+    for k, img in enumerate(images):
+        grid[(k // cols) * h : (k // cols + 1) * h, (k % cols) * w : (k % cols + 1) * w] = img
+    out = Image.fromarray(grid)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    out.resize((out.width * scale, out.height * scale), Image.Resampling.NEAREST).save(path)
+    return path
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -162,6 +179,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--weather", default="ClearNoon")
     parser.add_argument("--pictures", type=Path, default=None, help="folder for the weather pictures")
+    parser.add_argument("--grid", type=Path, default=None, help="PNG of all CAVs' cameras of one tick")
     args = parser.parse_args()
     road_map = load_map(args.town)
     t0 = time.perf_counter()
@@ -178,6 +196,8 @@ def main() -> None:
     if args.pictures is not None:
         for p in save_pictures(camera, snaps[0], args.pictures):
             print(f"wrote {p}")
+    if args.grid is not None:
+        print(f"wrote {save_grid(camera, snaps[0], args.grid)}")
     first, ms, n = time_cameras(camera, snaps, args.weather)
     c = camera.config
     print(f"first call (JIT compile or cache load): {first:.2f} s")
