@@ -19,7 +19,7 @@ of ``cell_size`` cells, so a camera only visits the cells within ``max_range`` t
 horizontal field of view; triangles crossing the camera plane are clipped at ``near``. Measured: 16
 cameras of 256 x 128 on downtown with ~170 actors take ~4.5-5 ms per tick on 2 quiet cores, ~10 ms
 while other jobs share them (``benchmarks/sensors.py``, docs/camera.md); the first call compiles for
-~7 s, later processes load numba's cache in < 0.3 s.
+7-10 s, later processes load numba's cache in < 0.3 s.
 
 Conventions: map frame x east, y north, z up [m]. Camera frame (OpenCV) x right, y down, z forward
 [m]; pixel (row r, col c) has its centre at (u, v) = (c + 0.5, r + 0.5), u = fx x / z + cx,
