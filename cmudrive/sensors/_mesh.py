@@ -266,16 +266,8 @@ def boxes(x, y, yaw, length, width, z0, z1, colour, flags=0) -> Triangles:
 # ---------------------------------------------------------------------------------------- the map
 def ground_triangles(m: RoadMap) -> Triangles:
     """Junction areas, lane surfaces (pavements raised), zebra crossings and the lane markings."""
-    parts = [
-        Triangles.make(
-            np.concatenate(
-                [polygon_triangles(p, 0.0) for p in junction_polygons(m)] or [np.zeros((0, 3, 3))]
-            ),
-            ASPHALT,
-            FLAG_ROAD,
-            ROAD_KEEP,
-        )
-    ]
+    junctions = [polygon_triangles(p, 0.0) for p in junction_polygons(m)]
+    parts = [Triangles.make(np.concatenate([np.zeros((0, 3, 3)), *junctions]), ASPHALT, FLAG_ROAD, ROAD_KEEP)]
     for lane in range(m.num_lanes):
         kind = LaneKind(int(m.lane_kind[lane]))
         xy, half = m.polyline(lane), 0.5 * float(m.lane_width[lane])
@@ -325,9 +317,8 @@ def scenery_triangles(scenery: StaticScenery) -> Triangles:
 
 @dataclass(frozen=True)
 class SignalLamps:
-    """Lamps of the traffic-light heads: ``M`` lamps, 10 triangles each, starting at ``first_tri``."""
+    """Lamps of the traffic-light heads: ``M`` lamps, 10 triangles each, in the order of their mesh."""
 
-    first_tri: int  # index of the first lamp triangle in the static triangles
     tls: np.ndarray  # (M,) int64 traffic light
     signal: np.ndarray  # (M,) int64 signal index in the light's state string, -1 unknown
     colour: np.ndarray  # (M,) int64 0 red, 1 amber, 2 green (its place in the head)
@@ -388,7 +379,7 @@ def signal_triangles(m: RoadMap) -> tuple[Triangles, Triangles, SignalLamps]:
                 signal_of.append(sig)
                 colour_of.append(c)
     lamps = SignalLamps(
-        0, np.array(tls_of, np.int64), np.array(signal_of, np.int64), np.array(colour_of, np.int64)
+        np.array(tls_of, np.int64), np.array(signal_of, np.int64), np.array(colour_of, np.int64)
     )
     return Triangles.concat(fixed), Triangles.concat(lamp_parts), lamps
 
