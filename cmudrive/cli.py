@@ -184,6 +184,10 @@ def sim_demo(
     pixels_per_meter: Annotated[float | None, typer.Option(help="video resolution [px/m]")] = None,
     follow: Annotated[int | None, typer.Option(help="follow this CAV instead of showing all")] = None,
     window: Annotated[float, typer.Option(help="size of the follow view [m]")] = 100.0,
+    sensors: Annotated[
+        bool,
+        typer.Option(help="show the followed CAV's camera, own and merged occupancy beside the BEV view"),
+    ] = False,
 ) -> None:
     """CAVs on a lane-following autopilot among background traffic, rendered in BEV."""
     from cmudrive.sim.demo import run_demo
@@ -191,7 +195,7 @@ def sim_demo(
     if follow is not None and not 0 <= follow < cavs:
         _fail(ValueError(f"--follow {follow}: there are only CAVs 0-{cavs - 1}"))
     try:
-        stats = run_demo(town, cavs, seconds, seed, output, pixels_per_meter, follow, window)
+        stats = run_demo(town, cavs, seconds, seed, output, pixels_per_meter, follow, window, sensors)
     except MapError as exc:
         _fail(exc)
     console.print(

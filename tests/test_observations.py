@@ -103,3 +103,39 @@ def test_nothing_is_computed_that_was_not_declared() -> None:
     assert obs.partner is None and obs.visible is None and obs.snapshot is None
     assert obs.other_cavs is not None and obs.other_cavs.shape == (2, 2, 3)
     assert result.v2v is None
+
+
+class Sees(PidAgent):
+    observations: ClassVar[frozenset[Observation]] = frozenset({Observation.EGO_STATE, Observation.CAMERA})
+    seen: ClassVar[list[Observations]] = []
+
+    def run_step(self, obs: Observations) -> Controls:
+        Sees.seen.append(obs)
+        return super().run_step(obs)
+
+
+def test_camera_images_come_batched_when_declared() -> None:
+    Sees.seen.clear()
+    evaluate_route(ring_route(), Sees, EvalConfig(tick_cap=3, background=TRAFFIC))
+    images = Sees.seen[0].camera
+    assert images is not None and images.shape == (2, 128, 256, 3) and images.dtype == np.uint8
+    # the road ahead: the lower half of the image is mostly the grey road, the top row sky-blue
+    bottom = images[:, 96:, 96:160].reshape(2, -1, 3).astype(int)
+    assert (np.abs(bottom[..., 0] - bottom[..., 2]) < 25).mean() > 0.8
+    top = images[:, 0].astype(int)
+    assert (top[..., 2] > top[..., 0]).all()
+
+
+def test_sensor_demo_video_shows_camera_occupancy_and_bev(tmp_path) -> None:
+    import imageio.v3 as iio
+
+    from cmudrive.sim.demo import run_demo
+
+    out = tmp_path / "sensors.gif"
+    stats = run_demo("downtown", cavs=3, seconds=0.3, output=out, sensors=True, follow=1, window=60.0)
+    assert stats.ticks == 6
+    frames = iio.imread(out)
+    assert frames.shape[0] == 6
+    height, width = frames.shape[1:3]
+    # camera (2:1) + two occupancy panels (2:3) + the square BEV window, side by side
+    assert width > 3.5 * height

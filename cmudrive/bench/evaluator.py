@@ -149,6 +149,7 @@ def evaluate_route(
             scenery,
             config=config.sensors,
             rng=np.random.default_rng([spec.seed, 1]),  # sensors' own stream: traffic is unchanged
+            road_map=road_map,
         )
         loop = _Loop(world, criteria, agent, observer, config, recorder, hooks, spec)
         error = None

@@ -11,20 +11,26 @@ from __future__ import annotations
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from rich.progress import Progress
 
 from cmudrive.agents.autopilot import LaneFollowingAutopilot
-from cmudrive.maps import RoadMap, Route, RouteError, RoutePlanner, load_map
+from cmudrive.agents.base import Observations
+from cmudrive.maps import RoadMap, Route, RouteError, RoutePlanner, load_map, load_scenery
 from cmudrive.maps.routing import pick_far_apart
 from cmudrive.sim.background import BackgroundActivity, BackgroundConfig
 from cmudrive.sim.snapshot import ActorKind, Role, Snapshot
 from cmudrive.sim.world import World, WorldConfig
 
+if TYPE_CHECKING:
+    from cmudrive.viz.bev import BevRenderer
+
 MIN_START_SPACING = 25.0  # [m] between the start points of any two CAVs
 MIN_ROUTE_LENGTH = 250.0  # [m]
 MAX_FRAME_PX = 1600  # longest side of the video frame [px]
+SENSOR_PANEL_PX = 512  # [px] side of the BEV window in the --sensors video
 
 
 @dataclass
@@ -67,9 +73,12 @@ def run_demo(
     pixels_per_meter: float | None = None,
     follow: int | None = None,
     window: float = 100.0,
+    sensors: bool = False,
 ) -> DemoStats:
     """Run ``cavs`` CAVs for ``seconds``; with ``output``, write a BEV video of the area their routes span
-    (or, with ``follow``, a ``window``-metre view that follows that CAV)."""
+    (or, with ``follow``, a ``window``-metre view that follows that CAV). With ``sensors``, each frame
+    shows what the followed CAV (CAV 0 by default) perceives: front camera | own occupancy | merged
+    occupancy | a BEV window around it with every CAV's V2V link drawn as an arrow to its partner."""
     from cmudrive.viz.bev import BevRenderer
     from cmudrive.viz.video import write_video
 
@@ -85,11 +94,13 @@ def run_demo(
         world.background.populate(world)
         pilot = LaneFollowingAutopilot(road_map, routes)
         renderer = None
+        perceive = _Perception(world, follow or 0) if sensors else None
         if output is not None:
             xy = np.concatenate([r.xy for r in routes])
             lo, hi = xy.min(axis=0) - 60.0, xy.max(axis=0) + 60.0
-            if follow is not None:
-                ppm = pixels_per_meter or MAX_FRAME_PX / 2 / window
+            if follow is not None or sensors:
+                panel = SENSOR_PANEL_PX if sensors else MAX_FRAME_PX / 2
+                ppm = pixels_per_meter or _fitting_ppm(panel / window, hi - lo)
             else:
                 ppm = pixels_per_meter or min(4.0, MAX_FRAME_PX / float(np.max(hi - lo)))
             renderer = BevRenderer(road_map, ppm, bounds=(lo[0], lo[1], hi[0], hi[1]))
@@ -107,9 +118,13 @@ def run_demo(
                     )
                     _record(stats, world, snap)
                     progress.advance(task)
+                    if perceive is not None:
+                        perceive.observe(snap)
                     if renderer is not None:
                         paths = [r.xy for r in routes]
-                        if follow is None:
+                        if perceive is not None:
+                            yield perceive.frame(snap, renderer, window, paths)
+                        elif follow is None:
                             yield renderer.render(snap, routes=paths, title=road_map.name)
                         else:
                             yield renderer.render(
@@ -124,6 +139,71 @@ def run_demo(
         stats.background = dict(world.background.stats)
         stats.sumo_collisions = world.sumo.sumo_collisions
     return stats
+
+
+def _fitting_ppm(ppm: float, extent: np.ndarray) -> float:
+    """``ppm`` [px/m], lowered where the pre-rendered background of ``extent`` [m] would be too large."""
+    from cmudrive.viz.bev import MAX_BACKGROUND_PIXELS, MAX_BACKGROUND_SIDE
+
+    w, h = float(extent[0]), float(extent[1])
+    return min(ppm, 0.95 * MAX_BACKGROUND_SIDE / max(w, h), (0.9 * MAX_BACKGROUND_PIXELS / (w * h)) ** 0.5)
+
+
+class _Perception:
+    """Sensors and V2V of every CAV, as an agent declaring camera and merged occupancy gets them."""
+
+    def __init__(self, world: World, follow: int) -> None:
+        from cmudrive.agents.base import Observation
+        from cmudrive.bench.observe import ObservationBuilder
+
+        if not 0 <= follow < len(world.cav_ids):
+            raise ValueError(f"cannot follow CAV {follow}: there are CAVs 0-{len(world.cav_ids) - 1}")
+        self.follow = follow
+        self.scenery = load_scenery(world.map)
+        self.builder = ObservationBuilder(
+            frozenset({Observation.CAMERA, Observation.MERGED_OCCUPANCY}),
+            len(world.cav_ids),
+            world.weather,
+            self.scenery,
+            road_map=world.map,
+        )
+        self.obs: Observations | None = None
+        self.world = world
+
+    def observe(self, snap: Snapshot) -> None:
+        rows, index = snap.cav_rows()
+        keep = self.world.cav_active[index]
+        self.obs = self.builder.build(snap, snap.step, rows[keep], index[keep], privileged=False)
+
+    def frame(
+        self, snap: Snapshot, renderer: BevRenderer, window: float, paths: list[np.ndarray]
+    ) -> np.ndarray:
+        from cmudrive.sensors import occupancy_to_rgb
+        from cmudrive.viz.sensor_view import sensor_row
+
+        obs = self.obs
+        assert obs is not None and obs.partner is not None
+        links = [(f"cav{a}", f"cav{b}") for a, b in zip(obs.cav_index, obs.partner, strict=True) if b >= 0]
+        at = np.flatnonzero(obs.cav_index == self.follow)
+        centre = f"cav{self.follow}" if len(at) else None
+        bev = renderer.render(snap, center=centre, size_m=window, routes=paths, links=links)
+        if not len(at):  # the followed CAV has finished: the map view only
+            return bev
+        i = int(at[0])
+        assert obs.camera is not None and obs.occupancy is not None and obs.merged_occupancy is not None
+        partner = int(obs.partner[i])
+        return sensor_row(
+            [
+                (f"CAV {self.follow} camera", obs.camera[i]),
+                ("own occupancy", occupancy_to_rgb(obs.occupancy[i : i + 1])[0]),
+                (
+                    f"merged with CAV {partner}" if partner >= 0 else "merged (no partner)",
+                    occupancy_to_rgb(obs.merged_occupancy[i : i + 1])[0],
+                ),
+                ("BEV, V2V links", bev),
+            ],
+            height=SENSOR_PANEL_PX,
+        )
 
 
 def _record(stats: DemoStats, world: World, snap: Snapshot) -> None:
