@@ -1,4 +1,5 @@
-"""Sensor budget: the 16 front cameras of a tick, rendered in one batched call.
+"""Sensor budgets: the 16 front cameras of a tick in one batched call, and visibility + occupancy + V2V
+merge for the same 16 CAVs.
 
     python benchmarks/sensors.py [--town downtown] [--ticks 100] [--pictures docs/img] [--grid PNG]
 
@@ -8,7 +9,11 @@ recorded. Timed: ``FrontCamera.render`` of all 16 CAVs per snapshot (actor meshe
 weather pass), after one JIT warm-up call; the first call's time (numba compile, or cache load) is
 printed separately. ``--pictures`` also renders one camera view per weather preset at a junction into
 that folder (``camera_<Weather>.png`` and the strip ``camera_weathers.png``); ``--grid`` saves all CAVs'
-cameras of one tick.
+cameras of one tick. Both use the town's static scenery (buildings, poles, guardrails).
+
+Perception is timed per snapshot as an agent declaring merged occupancy gets it: visibility of every
+actor and scenery object from each camera, each CAV's own occupancy, then partner selection, warp and
+merge (``perception: visibility ... occupancy ... v2v ... total`` ms, median per tick; budget 5 ms).
 
 The last line is ``ms_per_tick_16cams=<median ms per tick>``.
 """
@@ -22,13 +27,16 @@ from pathlib import Path
 import numpy as np
 
 from cmudrive.agents.autopilot import LaneFollowingAutopilot
-from cmudrive.maps import LaneKind, RoadMap, StopKind, load_map
+from cmudrive.maps import LaneKind, RoadMap, StopKind, load_map, load_scenery
+from cmudrive.maps.scenery import StaticScenery
+from cmudrive.sensors import PerceptionFrame, SimulatedOccupancy, compute_visibility
 from cmudrive.sensors.camera import CameraConfig, FrontCamera
 from cmudrive.sim.background import BackgroundActivity, BackgroundConfig
 from cmudrive.sim.demo import demo_routes
 from cmudrive.sim.snapshot import ActorKind, Role, Snapshot
 from cmudrive.sim.weather import WEATHERS, get_weather
 from cmudrive.sim.world import World, WorldConfig
+from cmudrive.v2v import V2VNetwork
 
 WARMUP_TICKS = 200  # [ticks] of 0.05 s before recording: traffic spreads out, CAVs get moving
 
@@ -67,6 +75,28 @@ def time_cameras(camera: FrontCamera, snaps: list[Snapshot], weather: str) -> tu
         camera.render(snap, rows, w)
         times.append(time.perf_counter() - t0)
     return first, float(np.median(times)) * 1e3, len(rows)
+
+
+def time_perception(snaps: list[Snapshot], weather: str, scenery: StaticScenery) -> dict[str, float]:
+    """Median ms per tick of visibility, own occupancy and V2V (partners, warp, merge) for all CAVs."""
+    visibility_range = get_weather(weather).visibility
+    occupancy, network = SimulatedOccupancy(), V2VNetwork()
+    parts: dict[str, list[float]] = {"visibility": [], "occupancy": [], "v2v": []}
+    for tick, snap in enumerate([snaps[0], *snaps]):  # the first round compiles (or loads) the kernels
+        rows, index = snap.cav_rows()
+        t0 = time.perf_counter()
+        vis = compute_visibility(snap, rows, visibility_range, scenery)
+        t1 = time.perf_counter()
+        own = occupancy(PerceptionFrame(snap, rows, vis, scenery))
+        t2 = time.perf_counter()
+        network.exchange(tick, index, np.stack([snap.x[rows], snap.y[rows], snap.yaw[rows]], axis=1), own)
+        t3 = time.perf_counter()
+        if tick:
+            for key, dt in zip(parts, (t1 - t0, t2 - t1, t3 - t2), strict=True):
+                parts[key].append(dt)
+    out = {k: float(np.median(v)) * 1e3 for k, v in parts.items()}
+    out["total"] = float(np.median(np.sum([parts[k] for k in parts], axis=0))) * 1e3
+    return out
 
 
 def junction_view(road_map: RoadMap, snap: Snapshot) -> tuple[Snapshot, int]:
@@ -189,15 +219,19 @@ def main() -> None:
         f"{time.perf_counter() - t0:.1f} s to simulate"
     )
     t0 = time.perf_counter()
-    camera = FrontCamera(CameraConfig(), road_map)
+    scenery = load_scenery(road_map)
+    camera = FrontCamera(CameraConfig(), road_map, scenery)
     print(
-        f"camera: {camera.num_static_triangles} static triangles, built in {time.perf_counter() - t0:.2f} s"
+        f"camera: {camera.num_static_triangles} static triangles ({len(scenery)} scenery objects), "
+        f"built in {time.perf_counter() - t0:.2f} s"
     )
     if args.pictures is not None:
         for p in save_pictures(camera, snaps[0], args.pictures):
             print(f"wrote {p}")
     if args.grid is not None:
         print(f"wrote {save_grid(camera, snaps[0], args.grid)}")
+    perception = time_perception(snaps, args.weather, scenery)
+    print("perception, median ms/tick: " + ", ".join(f"{k} {v:.2f}" for k, v in perception.items()))
     first, ms, n = time_cameras(camera, snaps, args.weather)
     c = camera.config
     print(f"first call (JIT compile or cache load): {first:.2f} s")

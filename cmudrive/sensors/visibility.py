@@ -168,41 +168,57 @@ def _item_buffer(
     seen = np.zeros((n, num_obj), np.bool_)
     half = 0.5 * fov
     width = fov / bins
-    local = np.empty((4, 2))
+    centre_angle = -half + (np.arange(bins) + 0.5) * width
+    ray_c, ray_s = np.cos(centre_angle), np.sin(centre_angle)
+    # per object: its centre and the radius of its footprint, for a cheap range cull
+    cx = corners[:, :, 0].sum(axis=1) * 0.25
+    cy = corners[:, :, 1].sum(axis=1) * 0.25
+    radius = np.zeros(num_obj)
+    for o in range(num_obj):
+        for k in range(4):
+            radius[o] = max(radius[o], np.hypot(corners[o, k, 0] - cx[o], corners[o, k, 1] - cy[o]))
+    local = np.empty((num_obj, 4, 2))  # corners in the camera frame (x forward, y left)
+    near = np.empty(num_obj, np.int64)  # objects in range of this camera
     for i in range(n):
         depth = np.full(bins, np.inf)  # nearest occluding surface per sector [m]
         owner = np.full(bins, -1)  # the occluder that owns it
         c, s = np.cos(cam_yaw[i]), np.sin(cam_yaw[i])
-        # per object, its nearest distance per sector (only for objects in range), in two passes:
-        # pass 1 fills the occluder buffer, pass 2 tests every object against it
+        m = 0
+        for o in range(num_obj):
+            if not usable[o] or o == self_row[i]:
+                continue
+            if np.hypot(cx[o] - cam_xy[i, 0], cy[o] - cam_xy[i, 1]) - radius[o] > max_range:
+                continue
+            ahead = False
+            closest = np.inf
+            for k in range(4):
+                dx = corners[o, k, 0] - cam_xy[i, 0]
+                dy = corners[o, k, 1] - cam_xy[i, 1]
+                local[o, k, 0] = c * dx + s * dy
+                local[o, k, 1] = -s * dx + c * dy
+                ahead = ahead or local[o, k, 0] > 0.0
+                closest = min(closest, np.hypot(local[o, k, 0], local[o, k, 1]))
+            if ahead and closest <= max_range + 1e-9:
+                near[m] = o
+                m += 1
+        # pass 1 fills the occluder buffer, pass 2 tests every object in range against it
         for pass_ in range(2):
-            for o in range(num_obj):
-                if not usable[o] or o == self_row[i]:
-                    continue
+            for j in range(m):
+                o = near[j]
                 if pass_ == 0 and not occludes[o]:
                     continue
-                near_obj = np.inf
+                inside = _contains_origin(local[o])
                 for k in range(4):
-                    dx = corners[o, k, 0] - cam_xy[i, 0]
-                    dy = corners[o, k, 1] - cam_xy[i, 1]
-                    local[k, 0] = c * dx + s * dy  # forward
-                    local[k, 1] = -s * dx + c * dy  # left
-                    near_obj = min(near_obj, np.hypot(local[k, 0], local[k, 1]))
-                if near_obj > max_range + 1e-9:
-                    continue
-                inside = _contains_origin(local)
-                for k in range(4):
-                    x0, y0 = local[k, 0], local[k, 1]
-                    x1, y1 = local[(k + 1) % 4, 0], local[(k + 1) % 4, 1]
+                    x0, y0 = local[o, k, 0], local[o, k, 1]
+                    x1, y1 = local[o, (k + 1) % 4, 0], local[o, (k + 1) % 4, 1]
                     b0, b1 = _sector_span(x0, y0, x1, y1, half, width, bins)
                     for b in range(b0, b1 + 1):
-                        ang = -half + (b + 0.5) * width
-                        ca, sa = np.cos(ang), np.sin(ang)
-                        d = _ray_segment(ca, sa, x0, y0, x1, y1)
-                        if d == np.inf:  # the edge touches the sector only off its centre ray
-                            d = _sector_edge_distance(x0, y0, x1, y1, ang, width)
                         if inside:
                             d = 0.0
+                        else:
+                            d = _ray_segment(ray_c[b], ray_s[b], x0, y0, x1, y1)
+                            if d == np.inf:  # the edge touches the sector only off its centre ray
+                                d = _sector_edge_distance(x0, y0, x1, y1, centre_angle[b], width)
                         if d > max_range:
                             continue
                         if pass_ == 0:
@@ -211,6 +227,7 @@ def _item_buffer(
                                 owner[b] = o
                         elif d <= depth[b] + 1e-6 or owner[b] == o:
                             seen[i, o] = True
+                            break  # one sector is enough
     return seen
 
 

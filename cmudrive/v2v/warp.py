@@ -114,14 +114,21 @@ def _warp_or(
         a10, a11 = -sp * ce + cp * se, sp * se + cp * ce
         tx, ty = dst_pose[i, 0] - src_pose[i, 0], dst_pose[i, 1] - src_pose[i, 1]
         b0, b1 = cp * tx + sp * ty, -sp * tx + cp * ty
+        packed = np.zeros((h, w), np.uint8)  # the classes of a cell as bits: one read per cell below
         for k in range(c):
-            if not src[i, k].any():  # most class layers are empty: skip them
-                continue
+            bit = np.uint8(1 << k)
             for r in range(h):
-                xe = ahead - (r + 0.5) * res
                 for col in range(w):
-                    ye = side - (col + 0.5) * res
-                    rp = int(np.floor((ahead - (a00 * xe + a01 * ye + b0)) / res))
-                    cq = int(np.floor((side - (a10 * xe + a11 * ye + b1)) / res))
-                    if 0 <= rp < h and 0 <= cq < w and src[i, k, rp, cq]:
-                        out[i, k, r, col] = True
+                    if src[i, k, r, col]:
+                        packed[r, col] |= bit
+        for r in range(h):
+            xe = ahead - (r + 0.5) * res
+            for col in range(w):
+                ye = side - (col + 0.5) * res
+                rp = int(np.floor((ahead - (a00 * xe + a01 * ye + b0)) / res))
+                cq = int(np.floor((side - (a10 * xe + a11 * ye + b1)) / res))
+                if 0 <= rp < h and 0 <= cq < w and packed[rp, cq]:
+                    bits = packed[rp, cq]
+                    for k in range(c):
+                        if bits & (1 << k):
+                            out[i, k, r, col] = True
