@@ -27,11 +27,12 @@ from cmudrive.maps import (
 )
 from cmudrive.maps.routing import Route
 from cmudrive.maps.scenery_build import build_scenery
+from cmudrive.maps.surfaces import junction_polygons
 from cmudrive.sim.collisions import detect_collisions
 from cmudrive.sim.dynamics import CavState, Controls, VehicleParams, step_bicycle
 from cmudrive.sim.snapshot import ActorKind, Role, Snapshot
 from cmudrive.viz.bev import BevRenderer
-from cmudrive.viz.map_plot import SCENERY_COLOURS, junction_polygons, lane_polygons
+from cmudrive.viz.map_plot import SCENERY_COLOURS, lane_polygons
 
 TOWNS = available_towns()
 FAST_TOWNS = {"highway", "interurban", "Town04", "Town06"}  # towns with fast roads without sidewalks

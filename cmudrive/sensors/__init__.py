@@ -1,12 +1,16 @@
-"""Sensors: what each CAV's front camera can see, and its BEV occupancy in its own frame.
+"""Sensors: each CAV's front camera, what it can see, and its BEV occupancy in its own frame.
 
 Typical use, per tick for the CAVs at snapshot rows ``rows``::
+
+    from cmudrive.sensors import FrontCamera, CameraConfig
+    images = FrontCamera(CameraConfig(), road_map, scenery).render(snap, rows, weather)  # (n, 128, 256, 3)
 
     from cmudrive.sensors import compute_visibility, SimulatedOccupancy, PerceptionFrame
     vis = compute_visibility(snap, rows, weather.visibility, scenery)
     grids = SimulatedOccupancy()(PerceptionFrame(snap, rows, vis, scenery))   # (n, 4, 192, 128) bool
 """
 
+from cmudrive.sensors.camera import CameraConfig, FrontCamera
 from cmudrive.sensors.occupancy import (
     NUM_CLASSES,
     DetectionNoise,
@@ -21,7 +25,9 @@ from cmudrive.sensors.visibility import Visibility, VisibilityConfig, camera_pos
 
 __all__ = [
     "NUM_CLASSES",
+    "CameraConfig",
     "DetectionNoise",
+    "FrontCamera",
     "OccupancyClass",
     "OccupancyConfig",
     "OccupancyModel",

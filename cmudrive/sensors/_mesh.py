@@ -15,10 +15,10 @@ from shapely.geometry import Polygon
 
 from cmudrive.maps.model import LaneKind, RoadMap, StopKind, TurnDir
 from cmudrive.maps.scenery import SceneryKind, StaticScenery
+from cmudrive.maps.surfaces import junction_polygons, marking_lines
 from cmudrive.sensors._raster import FLAG_EMISSIVE, FLAG_ROAD
 from cmudrive.sim.actor_types import ACTOR_TYPES
 from cmudrive.sim.snapshot import ActorKind, Snapshot
-from cmudrive.viz.map_plot import junction_polygons, marking_lines
 
 # ground layers: depth-test bias (1 - keep) so that coplanar surfaces stack without z-fighting
 ROAD_KEEP = np.float32(0.999)  # road surfaces over the ground plane

@@ -45,15 +45,14 @@ from PIL import Image, ImageDraw, ImageFont
 
 from cmudrive.maps.model import RoadMap, StopKind, TurnDir
 from cmudrive.maps.scenery import SceneryKind, StaticScenery
+from cmudrive.maps.surfaces import junction_polygons, marking_lines
 from cmudrive.sim.snapshot import ActorKind, Role, Snapshot
 from cmudrive.viz.map_plot import (
     BACKGROUND,
     BUILDING_EDGE,
     JUNCTION_COLOUR,
     SCENERY_COLOURS,
-    junction_polygons,
     lane_polygons,
-    marking_lines,
     scenery_shapes,
     signal_colour,
 )

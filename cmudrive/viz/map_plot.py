@@ -26,6 +26,12 @@ from matplotlib.patches import Patch
 
 from cmudrive.maps.model import LaneKind, RoadMap, StopKind
 from cmudrive.maps.scenery import SceneryKind, StaticScenery
+from cmudrive.maps.surfaces import (
+    junction_polygons,
+    lane_polygon,
+    marking_lines,
+    zebra_stripes,
+)
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -51,7 +57,6 @@ SIGNAL_COLOURS = {
     "u": "#f2a20c",
 }
 SIGNAL_UNKNOWN = "#999999"  # off ('o', 'O') or an unknown state character
-ZEBRA_PERIOD = 1.0  # [m] stripe + gap along a crossing
 SCENERY_COLOURS = {  # fill colours of static scenery footprints
     SceneryKind.BUILDING: "#a89580",  # grey-brown
     SceneryKind.WALL: "#8c8173",
@@ -68,40 +73,6 @@ def signal_colour(char: str) -> str:
     return SIGNAL_COLOURS.get(char, SIGNAL_UNKNOWN)
 
 
-def _offset(xy: np.ndarray, offset: float) -> np.ndarray:
-    """Offset a polyline (n, 2) sideways by ``offset`` (+ left) using per-vertex mitre-free normals."""
-    seg = np.diff(xy, axis=0)
-    seg /= np.maximum(np.linalg.norm(seg, axis=1, keepdims=True), 1e-12)
-    normals = np.stack([-seg[:, 1], seg[:, 0]], axis=1)
-    vertex = np.vstack([normals[:1], normals[:-1] + normals[1:], normals[-1:]])
-    vertex /= np.maximum(np.linalg.norm(vertex, axis=1, keepdims=True), 1e-12)
-    return xy + offset * vertex
-
-
-def _lane_polygon(m: RoadMap, lane: int) -> np.ndarray:
-    xy = m.polyline(lane)
-    half = 0.5 * float(m.lane_width[lane])
-    return np.vstack([_offset(xy, half), _offset(xy, -half)[::-1]])
-
-
-def _zebra(m: RoadMap, lane: int) -> list[np.ndarray]:
-    xy, s = m.polyline(lane), m.polyline_s(lane)
-    half = 0.5 * float(m.lane_width[lane])
-    stripes = []
-    for s0 in np.arange(0.25, s[-1] - 0.5, ZEBRA_PERIOD):
-        a = np.array([np.interp(s0, s, xy[:, 0]), np.interp(s0, s, xy[:, 1])])
-        b = np.array([np.interp(s0 + 0.5, s, xy[:, 0]), np.interp(s0 + 0.5, s, xy[:, 1])])
-        direction = (b - a) / max(np.linalg.norm(b - a), 1e-9)
-        n = np.array([-direction[1], direction[0]]) * half
-        stripes.append(np.array([a - n, b - n, b + n, a + n]))
-    return stripes
-
-
-def junction_polygons(m: RoadMap) -> list[np.ndarray]:
-    """Outline polygons (n, 2) [m] of the junctions that have one."""
-    return [m.junction_shape(j) for j in range(len(m.junction_ids)) if len(m.junction_shape(j)) >= 3]
-
-
 def lane_polygons(m: RoadMap) -> tuple[list[np.ndarray], list[str], list[np.ndarray]]:
     """Lane surfaces in drawing order (pavements first, roads on top): polygons (n, 2) [m], their colours,
     and the zebra stripes (4, 2) [m] of the crossings (crossings have no surface polygon of their own)."""
@@ -112,9 +83,9 @@ def lane_polygons(m: RoadMap) -> tuple[list[np.ndarray], list[str], list[np.ndar
     for lane in order.tolist():
         kind = LaneKind(int(m.lane_kind[lane]))
         if kind == LaneKind.CROSSING:
-            zebra.extend(_zebra(m, lane))
+            zebra.extend(zebra_stripes(m, lane))
             continue
-        poly = m.polyline(lane) if kind == LaneKind.WALKINGAREA else _lane_polygon(m, lane)
+        poly = m.polyline(lane) if kind == LaneKind.WALKINGAREA else lane_polygon(m, lane)
         if len(poly) >= 3:
             polys.append(poly)
             colours.append(LANE_COLOURS[kind])
@@ -162,36 +133,6 @@ def draw_scenery(scenery: StaticScenery, ax: Axes) -> None:
         ax.scatter(
             poles[:, 0], poles[:, 1], s=1.5, c=SCENERY_COLOURS[SceneryKind.POLE], linewidths=0, zorder=5
         )
-
-
-class Markings(NamedTuple):
-    """Road markings as polylines (n, 2) [m]."""
-
-    solid: list[np.ndarray]  # white road edges
-    dashed: list[np.ndarray]  # white lines between same-direction lanes
-    centre: list[np.ndarray]  # yellow line between opposite directions
-    stop: list[np.ndarray]  # (2, 2) stop lines, right end first
-
-
-def marking_lines(m: RoadMap) -> Markings:
-    """The markings of the normal driving lanes (see the module docstring for the convention)."""
-    solid: list[np.ndarray] = []
-    dashed: list[np.ndarray] = []
-    centre: list[np.ndarray] = []
-    normal_driving = np.flatnonzero((m.lane_kind == LaneKind.DRIVING) & ~m.lane_internal)
-    for lane in normal_driving.tolist():
-        xy = m.polyline(lane)
-        half = 0.5 * float(m.lane_width[lane])
-        left, right = m.lane_left[lane], m.lane_right[lane]
-        if m.lane_opposite[lane] >= 0:
-            centre.append(_offset(xy, half))
-        elif left >= 0 and m.lane_kind[left] == LaneKind.DRIVING:
-            dashed.append(_offset(xy, half))
-        else:
-            solid.append(_offset(xy, half))
-        if right < 0 or m.lane_kind[right] != LaneKind.DRIVING:
-            solid.append(_offset(xy, -half))
-    return Markings(solid, dashed, centre, list(m.stop_xy))
 
 
 def draw_map(m: RoadMap, ax: Axes, markings: bool = True, signals: bool = True) -> None:
