@@ -273,11 +273,15 @@ class World:
         snap = self.snapshot()
         t4 = perf_counter()
         events = detect_collisions(snap)
-        # pedestrians brushing past each other in a crowd are not a driving event
-        self.collisions = events.select(
-            (events.kind_a != ActorKind.PEDESTRIAN) | (events.kind_b != ActorKind.PEDESTRIAN)
-        )
-        self._hold_sumo_actors_after_collisions(snap)
+        if len(events):
+            # pedestrians brushing past each other in a crowd are not a driving event
+            events = events.select(
+                (events.kind_a != ActorKind.PEDESTRIAN) | (events.kind_b != ActorKind.PEDESTRIAN)
+            )
+            self.collisions = events
+            self._hold_sumo_actors_after_collisions(snap)
+        else:
+            self.collisions = events
         self.last_snapshot = snap
         t5 = perf_counter()
         for phase, dt in zip(TICK_PHASES, (t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4), strict=True):
