@@ -1,6 +1,7 @@
 """World-tick budget: our full tick vs bare libsumo stepping the same network with the same traffic.
 
     python benchmarks/engine.py [--town downtown] [--ticks 2000] [--quick]
+    python benchmarks/engine.py --grid [--ticks 300]      # ticks/s against CAV count and density
 
 1. Our world: 16 CAVs on the lane-following autopilot, background activity holding ~100 vehicles and
    ~50 pedestrians around them. Timed: ``World.tick`` only (CAV dynamics, push into SUMO, SUMO step,
@@ -14,15 +15,25 @@ Peak memory is the process's maximum resident set size. The per-phase line split
 (validate, integrate, push), "sumo_step" (SUMO's step inside our loop), "background", "snapshot",
 "collisions". Note that SUMO's own step is ~1 ms slower inside any Python loop that does real work
 between steps than in a bare stepping loop (CPU caches), which this ratio charges to us.
+
+``--grid``: our ticks per second (same tick, same timer) for 2, 4, 8 and 16 CAVs against 0, 50, 100 and
+200 background vehicles (with half as many background pedestrians), one world per cell, all in one run;
+printed as a markdown table for docs/simulator.md.
+
+The script imports cmudrive from the checkout it lives in (not whichever copy is installed).
 """
 
 from __future__ import annotations
 
 import argparse
 import resource
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's cmudrive
 
 from cmudrive.agents.autopilot import LaneFollowingAutopilot
 from cmudrive.maps import load_map, resolve_map_path
@@ -32,6 +43,8 @@ from cmudrive.sim.sumo import start_sumo
 from cmudrive.sim.world import World, WorldConfig
 
 WARMUP_TICKS = 40
+GRID_CAVS = (2, 4, 8, 16)
+GRID_VEHICLES = (0, 50, 100, 200)  # background vehicles; background pedestrians: half as many
 
 
 def traffic_of_world() -> tuple[list[tuple[str, str, tuple[str, ...], str, float]], list[tuple]]:
@@ -66,10 +79,20 @@ def traffic_of_world() -> tuple[list[tuple[str, str, tuple[str, ...], str, float
     return vehicles, persons
 
 
-def run_world(town: str, ticks: int, cavs: int, seed: int) -> tuple[float, int, int, tuple]:
+def run_world(
+    town: str,
+    ticks: int,
+    cavs: int,
+    seed: int,
+    vehicles: int = 100,
+    pedestrians: int = 50,
+    quiet: bool = False,
+) -> tuple[float, int, int, tuple]:
     road_map = load_map(town)
     routes = demo_routes(road_map, cavs, np.random.default_rng(seed))
-    config = BackgroundConfig(vehicles=100, pedestrians=50, radius=250.0, pedestrian_radius=150.0)
+    config = BackgroundConfig(
+        vehicles=vehicles, pedestrians=pedestrians, radius=250.0, pedestrian_radius=150.0
+    )
     with World(WorldConfig(town=town, seed=seed), road_map=road_map) as world:
         for route in routes:
             world.add_cav(route)
@@ -84,14 +107,15 @@ def run_world(town: str, ticks: int, cavs: int, seed: int) -> tuple[float, int, 
             rows, index = snap.cav_rows()
             controls = pilot.controls(snap, rows, index)
             if k == WARMUP_TICKS:
-                traffic = traffic_of_world()
+                traffic = traffic_of_world() if not quiet else ([], [])
                 actors_at_start = len(snap.ids)
             t0 = time.perf_counter()
             snap = world.tick(controls)
             if k >= WARMUP_TICKS:
                 elapsed += time.perf_counter() - t0
         phases = ", ".join(f"{k} {v / ticks * 1e3:.2f}" for k, v in world.timing.items() if k != "ticks")
-        print(f"ours per phase [ms/tick]: {phases}")
+        if not quiet:
+            print(f"ours per phase [ms/tick]: {phases}")
         return elapsed, actors_at_start, len(snap.ids), traffic
 
 
@@ -127,6 +151,28 @@ def run_bare(town: str, ticks: int, seed: int, traffic: tuple) -> tuple[float, i
     return elapsed, at_start, at_end
 
 
+def run_grid(town: str, ticks: int, seed: int) -> None:
+    """Our ticks/s for every CAV count x background density, as a markdown table."""
+    rates: dict[tuple[int, int], float] = {}
+    actors: dict[tuple[int, int], int] = {}
+    for cavs in GRID_CAVS:
+        for vehicles in GRID_VEHICLES:
+            elapsed, start, end, _ = run_world(town, ticks, cavs, seed, vehicles, vehicles // 2, quiet=True)
+            rate, count = ticks / elapsed, (start + end) // 2
+            rates[cavs, vehicles], actors[cavs, vehicles] = rate, count
+            print(f"  {cavs} CAVs, {vehicles} vehicles: {rate:.0f} ticks/s, ~{count} actors", file=sys.stderr)
+    print(f"town {town}, {ticks} ticks of 0.05 s per cell after {WARMUP_TICKS} warm-up ticks, seed {seed}")
+    print(
+        "ticks/s (actors in the world, all kinds) by CAV count and background vehicles (+ half as many "
+        "pedestrians):\n"
+    )
+    print("| CAVs | " + " | ".join(f"{v} vehicles" for v in GRID_VEHICLES) + " |")
+    print("|---:|" + "---:|" * len(GRID_VEHICLES))
+    for cavs in GRID_CAVS:
+        cells = [f"{rates[cavs, v]:.0f} ({actors[cavs, v]})" for v in GRID_VEHICLES]
+        print(f"| {cavs} | " + " | ".join(cells) + " |")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -136,7 +182,11 @@ def main() -> None:
     parser.add_argument("--cavs", type=int, default=16)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--quick", action="store_true", help="400 ticks (well under a minute)")
+    parser.add_argument("--grid", action="store_true", help="ticks/s table: CAV count x background density")
     args = parser.parse_args()
+    if args.grid:
+        run_grid(args.town, args.ticks if args.ticks != parser.get_default("ticks") else 300, args.seed)
+        return
     ticks = 400 if args.quick else args.ticks
     ours, ours_start, ours_end, traffic = run_world(args.town, ticks, args.cavs, args.seed)
     bare, bare_start, bare_end = run_bare(args.town, ticks, args.seed, traffic)
