@@ -76,26 +76,28 @@ class ControlCheck:
     clipped: np.ndarray  # (n,) bool, some value of that CAV was out of range and clipped
 
 
+_CONTROL_NAMES = ("steer", "throttle", "brake")
+_CONTROL_LOW = np.array([[-1.0], [0.0], [0.0]])  # (3, 1) lower limits, in _CONTROL_NAMES order
+_CONTROL_HIGH = np.array([[1.0], [1.0], [1.0]])
+
+
 def validate_controls(controls: Controls, cav_ids: list[str] | np.ndarray) -> ControlCheck:
     """Reject non-finite controls (naming the CAV) and clip out-of-range ones (reported)."""
-    arrays = {
-        "steer": np.asarray(controls.steer, np.float64),
-        "throttle": np.asarray(controls.throttle, np.float64),
-        "brake": np.asarray(controls.brake, np.float64),
-    }
     n = len(cav_ids)
-    for name, value in arrays.items():
+    values = [np.asarray(getattr(controls, name), np.float64) for name in _CONTROL_NAMES]
+    for name, value in zip(_CONTROL_NAMES, values, strict=True):
         if value.shape != (n,):
             raise ControlError(f"{name} has shape {value.shape}, expected ({n},): one value per active CAV")
-        bad = np.flatnonzero(~np.isfinite(value))
-        if len(bad):
-            i = int(bad[0])
-            raise ControlError(f"CAV {cav_ids[i]}: {name} is {value[i]} (controls must be finite)")
-    steer = np.clip(arrays["steer"], -1.0, 1.0)
-    throttle = np.clip(arrays["throttle"], 0.0, 1.0)
-    brake = np.clip(arrays["brake"], 0.0, 1.0)
-    clipped = (steer != arrays["steer"]) | (throttle != arrays["throttle"]) | (brake != arrays["brake"])
-    return ControlCheck(Controls(steer, throttle, brake), clipped)
+    raw = np.stack(values)  # (3, n)
+    if not np.isfinite(raw).all():
+        for name, value in zip(_CONTROL_NAMES, raw, strict=True):
+            bad = np.flatnonzero(~np.isfinite(value))
+            if len(bad):
+                i = int(bad[0])
+                raise ControlError(f"CAV {cav_ids[i]}: {name} is {value[i]} (controls must be finite)")
+    fixed = np.clip(raw, _CONTROL_LOW, _CONTROL_HIGH)
+    clipped = (fixed != raw).any(axis=0)
+    return ControlCheck(Controls(fixed[0], fixed[1], fixed[2]), clipped)
 
 
 def step_bicycle(

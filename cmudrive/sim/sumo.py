@@ -129,16 +129,19 @@ class SumoSession:
             if self in _ACTIVE:
                 _ACTIVE.remove(self)
 
-    def step(self) -> None:
-        """One SUMO step; forget the actors that arrived."""
+    def step(self) -> set[str]:
+        """One SUMO step; forget the actors that arrived. Returns the ids of the vehicles that arrived
+        (registered or not: CAVs are not registered)."""
         import libsumo
 
         libsumo.simulationStep()
-        for gone in libsumo.simulation.getArrivedIDList():
+        arrived = set(libsumo.simulation.getArrivedIDList())
+        for gone in arrived:
             self.actors.pop(gone, None)
         for gone in libsumo.simulation.getArrivedPersonIDList():
             self.actors.pop(gone, None)
         self.sumo_collisions += int(libsumo.simulation.getCollidingVehiclesNumber())
+        return arrived
 
     # ------------------------------------------------------------------ reading
     def read(self, extra: list[str] | None = None) -> SumoArrays:

@@ -47,6 +47,8 @@ TICK_PHASES = ("cavs", "sumo_step", "background", "snapshot", "collisions")  # W
 COLLISION_HOLD = 5.0  # [s] a SUMO actor that hit something waits this long before driving on
 MAX_YAW_TO_LANE = np.radians(15.0)  # [rad] a SUMO vehicle on a normal lane points at most this far off it
 BRAKE_LIGHT_THRESHOLD = 0.05  # brake input above which a CAV shows brake lights
+_PEDESTRIAN = int(ActorKind.PEDESTRIAN)  # plain ints in the per-tick code: enum attribute lookups are slow
+_BACKGROUND = int(Role.BACKGROUND)
 
 
 @dataclass(frozen=True)
@@ -301,8 +303,9 @@ class World:
         self._advance_cavs(active, check.controls)
         self._push_layer()
         t1 = perf_counter()
-        self.sumo.step()
-        self._reinsert_arrived_cavs(active)
+        arrived = self.sumo.step()
+        if not arrived.isdisjoint(self._cav_in_sumo):
+            self._reinsert_arrived_cavs(active, arrived)
         self.step_count += 1
         t2 = perf_counter()
         if self.background is not None:
@@ -315,7 +318,7 @@ class World:
         if len(events):
             # pedestrians brushing past each other in a crowd are not a driving event
             events = events.select(
-                (events.kind_a != ActorKind.PEDESTRIAN) | (events.kind_b != ActorKind.PEDESTRIAN)
+                (events.kind_a != _PEDESTRIAN) | (events.kind_b != _PEDESTRIAN)
             )
             self.collisions = events
             self._hold_sumo_actors_after_collisions(snap)
@@ -352,11 +355,8 @@ class World:
                 [L.ids[i] for i in rows], L.x[rows], L.y[rows], L.yaw[rows], L.speed[rows], length
             )
 
-    def _reinsert_arrived_cavs(self, active: np.ndarray) -> None:
+    def _reinsert_arrived_cavs(self, active: np.ndarray, arrived: set[str]) -> None:
         """SUMO removes a vehicle at the end of its route; a CAV lives on until the evaluator ends it."""
-        import libsumo
-
-        arrived = set(libsumo.simulation.getArrivedIDList())
         for i in active.tolist():
             if self.cav_ids[i] in arrived:
                 self._cav_in_sumo.discard(self.cav_ids[i])
@@ -369,6 +369,7 @@ class World:
         st = self.cav_state
         cav = np.flatnonzero(self.cav_active)
         cav_ids = [self.cav_ids[i] for i in cav]
+        rows = slice(None) if len(cav) == len(self.cav_ids) else cav  # a view when every CAV is active
         L = self.layer
         layer_lane = (
             m.index.nearest_lane(np.stack([L.x, L.y], axis=1), max_distance=2.0).lane
@@ -382,13 +383,13 @@ class World:
         # a CAV's lane is where SUMO mapped it (heading-aware, within MATCH_RADIUS); off the road: -1
         cav_lane = [
             -1 if off else lookup.get(lid, -1)
-            for lid, off in zip(sumo.extra_lane_ids, self._cav_off_road[cav].tolist(), strict=True)
+            for lid, off in zip(sumo.extra_lane_ids, self._cav_off_road[rows].tolist(), strict=True)
         ]
         fixed = self._fixed_columns(cav, cav_ids, sumo)
         n_c, n_l = len(cav), len(L.ids)
         signals = np.concatenate(
             [
-                np.where(self._cav_brake[cav] > BRAKE_LIGHT_THRESHOLD, SIGNAL_BRAKELIGHT, 0),
+                np.where(self._cav_brake[rows] > BRAKE_LIGHT_THRESHOLD, SIGNAL_BRAKELIGHT, 0),
                 np.zeros(n_l, np.int32),
                 sumo.signals,
             ]
@@ -402,11 +403,11 @@ class World:
             ids=fixed.ids,
             kind=fixed.kind,
             role=fixed.role,
-            x=np.concatenate([st.x[cav], L.x, sumo_x]),
-            y=np.concatenate([st.y[cav], L.y, sumo_y]),
-            yaw=np.concatenate([st.yaw[cav], L.yaw, sumo_yaw]),
-            speed=np.concatenate([st.speed[cav], L.speed, sumo.speed]),
-            accel=np.concatenate([st.accel[cav], np.zeros(n_l), sumo.accel]),
+            x=np.concatenate([st.x[rows], L.x, sumo_x]),
+            y=np.concatenate([st.y[rows], L.y, sumo_y]),
+            yaw=np.concatenate([st.yaw[rows], L.yaw, sumo_yaw]),
+            speed=np.concatenate([st.speed[rows], L.speed, sumo.speed]),
+            accel=np.concatenate([st.accel[rows], np.zeros(n_l), sumo.accel]),
             length=fixed.length,
             width=fixed.width,
             lane=np.concatenate([cav_lane, layer_lane, sumo_lane]).astype(np.int32),
@@ -452,7 +453,7 @@ class World:
         reference point."""
         m = self.map
         x, y, yaw = sumo.x.copy(), sumo.y.copy(), sumo.yaw.copy()
-        rows = np.flatnonzero((lane >= 0) & (sumo.kind != ActorKind.PEDESTRIAN))
+        rows = np.flatnonzero((lane >= 0) & (sumo.kind != _PEDESTRIAN))
         rows = rows[~m.lane_internal[lane[rows]]]
         if len(rows) == 0:
             return x, y, yaw
@@ -472,7 +473,7 @@ class World:
             for me, other in ((a, b), (b, a)):
                 actor = str(snap.ids[me])
                 info = self.sumo.actors.get(actor)
-                if info is None or snap.role[other] == Role.BACKGROUND or actor in self._held:
+                if info is None or snap.role[other] == _BACKGROUND or actor in self._held:
                     continue
                 if info.is_person:  # a person's "speed" is its walking speed: keep it to restore it
                     self._held[actor] = (self.time + COLLISION_HOLD, libsumo.person.getMaxSpeed(actor))
