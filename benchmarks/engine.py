@@ -48,34 +48,39 @@ GRID_VEHICLES = (0, 50, 100, 200)  # background vehicles; background pedestrians
 
 
 def traffic_of_world() -> tuple[list[tuple[str, str, tuple[str, ...], str, float]], list[tuple]]:
-    """Every SUMO vehicle (id, type, remaining route, lane, pos) and person (id, edges, pos) now; the
-    bare run inserts vehicles at the maximum safe speed there."""
+    """Every SUMO vehicle (id, type, remaining route, lane index, pos) and person (id, edges, pos, arrival)
+    now; the bare run inserts vehicles at the maximum safe speed there. An actor inside a junction
+    (SUMO cannot insert there) starts at the beginning of its next edge instead, so that the bare run
+    holds as many actors as ours."""
     import libsumo
 
     vehicles = []
     for vid in libsumo.vehicle.getIDList():
         route = libsumo.vehicle.getRoute(vid)[libsumo.vehicle.getRouteIndex(vid) :]
         lane = libsumo.vehicle.getLaneID(vid)
-        if lane.startswith(":"):
-            continue  # inside a junction: cannot be inserted there; a handful at most
+        if lane.startswith(":"):  # on the junction after route[0]
+            if len(route) > 1:
+                vehicles.append((vid, libsumo.vehicle.getTypeID(vid), tuple(route[1:]), "best", 0.0))
+            continue
         vehicles.append(
             (
                 vid,
                 libsumo.vehicle.getTypeID(vid),
                 tuple(route),
-                lane,
+                lane.rsplit("_", 1)[1],
                 libsumo.vehicle.getLanePosition(vid),
             )
         )
     persons = []
     for pid in libsumo.person.getIDList():
         edge = libsumo.person.getRoadID(pid)
-        if edge.startswith(":"):
-            continue
+        pos = libsumo.person.getLanePosition(pid)
+        if edge.startswith(":"):  # on a crossing or walking area: from the start of the next edge
+            edge, pos = libsumo.person.getNextEdge(pid), 0.0
         stage = libsumo.person.getStage(pid)
         edges = [e for e in stage.edges if not e.startswith(":")]
         start = edges.index(edge) if edge in edges else 0
-        persons.append((pid, tuple(edges[start:]), libsumo.person.getLanePosition(pid), stage.arrivalPos))
+        persons.append((pid, tuple(edges[start:]), pos, stage.arrivalPos))
     return vehicles, persons
 
 
@@ -132,7 +137,7 @@ def run_bare(town: str, ticks: int, seed: int, traffic: tuple) -> tuple[float, i
                 f"r:{vid}",
                 typeID=vtype,
                 depart="now",
-                departLane=lane.rsplit("_", 1)[1],
+                departLane=lane,
                 departPos=str(pos),
                 departSpeed="max",
             )
