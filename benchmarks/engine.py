@@ -17,8 +17,8 @@ Peak memory is the process's maximum resident set size. The per-phase line split
 between steps than in a bare stepping loop (CPU caches), which this ratio charges to us.
 
 ``--grid``: our ticks per second (same tick, same timer) for 2, 4, 8 and 16 CAVs against 0, 50, 100 and
-200 background vehicles (with half as many background pedestrians), one world per cell, all in one run;
-printed as a markdown table for docs/simulator.md.
+200 background vehicles (with half as many background pedestrians), one world per cell, all in one run
+(median of ``--repeats`` rounds); printed as a markdown table for docs/simulator.md.
 
 The script imports cmudrive from the checkout it lives in (not whichever copy is installed).
 """
@@ -156,17 +156,27 @@ def run_bare(town: str, ticks: int, seed: int, traffic: tuple) -> tuple[float, i
     return elapsed, at_start, at_end
 
 
-def run_grid(town: str, ticks: int, seed: int) -> None:
-    """Our ticks/s for every CAV count x background density, as a markdown table."""
-    rates: dict[tuple[int, int], float] = {}
+def run_grid(town: str, ticks: int, seed: int, repeats: int) -> None:
+    """Our ticks/s for every CAV count x background density, as a markdown table: the median of
+    ``repeats`` rounds over all cells (rounds, not cells, repeated, so that a busy spell on a shared
+    machine spreads over the table instead of landing on one cell)."""
+    rates: dict[tuple[int, int], list[float]] = {}
     actors: dict[tuple[int, int], int] = {}
-    for cavs in GRID_CAVS:
-        for vehicles in GRID_VEHICLES:
-            elapsed, start, end, _ = run_world(town, ticks, cavs, seed, vehicles, vehicles // 2, quiet=True)
-            rate, count = ticks / elapsed, (start + end) // 2
-            rates[cavs, vehicles], actors[cavs, vehicles] = rate, count
-            print(f"  {cavs} CAVs, {vehicles} vehicles: {rate:.0f} ticks/s, ~{count} actors", file=sys.stderr)
-    print(f"town {town}, {ticks} ticks of 0.05 s per cell after {WARMUP_TICKS} warm-up ticks, seed {seed}")
+    for _ in range(repeats):
+        for cavs in GRID_CAVS:
+            for vehicles in GRID_VEHICLES:
+                elapsed, start, end, _ = run_world(
+                    town, ticks, cavs, seed, vehicles, vehicles // 2, quiet=True
+                )
+                rates.setdefault((cavs, vehicles), []).append(ticks / elapsed)
+                actors[cavs, vehicles] = (start + end) // 2
+    for (cavs, vehicles), values in rates.items():
+        spread = ", ".join(f"{v:.0f}" for v in sorted(values))
+        print(f"  {cavs} CAVs, {vehicles} vehicles: {spread} ticks/s", file=sys.stderr)
+    print(
+        f"town {town}, {ticks} ticks of 0.05 s per cell after {WARMUP_TICKS} warm-up ticks, seed {seed}, "
+        f"median of {repeats} rounds"
+    )
     print(
         "ticks/s (actors in the world, all kinds) by CAV count and background vehicles (+ half as many "
         "pedestrians):\n"
@@ -174,7 +184,7 @@ def run_grid(town: str, ticks: int, seed: int) -> None:
     print("| CAVs | " + " | ".join(f"{v} vehicles" for v in GRID_VEHICLES) + " |")
     print("|---:|" + "---:|" * len(GRID_VEHICLES))
     for cavs in GRID_CAVS:
-        cells = [f"{rates[cavs, v]:.0f} ({actors[cavs, v]})" for v in GRID_VEHICLES]
+        cells = [f"{np.median(rates[cavs, v]):.0f} ({actors[cavs, v]})" for v in GRID_VEHICLES]
         print(f"| {cavs} | " + " | ".join(cells) + " |")
 
 
@@ -188,9 +198,11 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--quick", action="store_true", help="400 ticks (well under a minute)")
     parser.add_argument("--grid", action="store_true", help="ticks/s table: CAV count x background density")
+    parser.add_argument("--repeats", type=int, default=3, help="--grid: rounds over all cells (median)")
     args = parser.parse_args()
     if args.grid:
-        run_grid(args.town, args.ticks if args.ticks != parser.get_default("ticks") else 300, args.seed)
+        ticks = args.ticks if args.ticks != parser.get_default("ticks") else 300
+        run_grid(args.town, ticks, args.seed, args.repeats)
         return
     ticks = 400 if args.quick else args.ticks
     ours, ours_start, ours_end, traffic = run_world(args.town, ticks, args.cavs, args.seed)
