@@ -29,6 +29,7 @@ from functools import cache
 from itertools import chain
 from pathlib import Path
 
+import numba
 import numpy as np
 
 from cmudrive.sim.actor_types import ACTOR_TYPES, ActorType
@@ -163,25 +164,22 @@ class SumoSession:
         nv, n_p = len(vids), len(pids)
         v_xy = np.fromiter(chain.from_iterable(map(veh.getPosition, vids)), np.float64, 2 * nv)
         p_xy = np.fromiter(chain.from_iterable(map(per.getPosition, pids)), np.float64, 2 * n_p)
-        pos = _interleave(vrows, v_xy.reshape(nv, 2), prows, p_xy.reshape(n_p, 2))
-        angle = _interleave(
+        x, y, yaw, speed = _actor_columns(
             vrows,
+            v_xy.reshape(nv, 2),
             np.fromiter(map(veh.getAngle, vids), np.float64, nv),
-            prows,
-            np.fromiter(map(per.getAngle, pids), np.float64, n_p),
-        )
-        speed = _interleave(
-            vrows,
             np.fromiter(map(veh.getSpeed, vids), np.float64, nv),
             prows,
+            p_xy.reshape(n_p, 2),
+            np.fromiter(map(per.getAngle, pids), np.float64, n_p),
             np.fromiter(map(per.getSpeed, pids), np.float64, n_p),
+            static.back,
         )
         lane_pos = np.zeros(len(ids))  # [m] along the lane (vehicles; 0 for persons)
         lane_pos[vrows] = np.fromiter(map(veh.getLanePosition, vids), np.float64, nv)
         lane_ids = np.empty(len(ids), object)
         lane_ids[vrows] = list(map(veh.getLaneID, vids))
         lane_ids[prows] = list(map(per.getLaneID, pids))
-        yaw = np.radians(90.0 - angle)  # SUMO: degrees clockwise from north
         # acceleration from the speed change since the last read (two getter calls per vehicle less);
         # actors that were not there last time get 0 (as does everyone on the first read)
         if ids == self._last_ids:
@@ -196,16 +194,15 @@ class SumoSession:
         self._last_ids, self._last_speed = ids, speed
         signals = static.signals.copy()
         signals[accel < -BRAKE_LIGHT_DECEL] |= SIGNAL_BRAKELIGHT
-        cos, sin = np.cos(yaw), np.sin(yaw)
         return SumoArrays(
             ids=static.ids,
             kind=static.kind,
             role=static.role,
             length=static.length,
             width=static.width,
-            x=pos[:, 0] - static.back * cos,
-            y=pos[:, 1] - static.back * sin,
-            yaw=(yaw + np.pi) % (2.0 * np.pi) - np.pi,
+            x=x,
+            y=y,
+            yaw=yaw,
             speed=speed,
             accel=accel,
             lane_ids=lane_ids.tolist(),
@@ -379,13 +376,32 @@ def _getters(domain: str) -> _Getters:
     return _Getters(*(getattr(raw, f"{domain}_{n}", None) or getattr(public, n) for n in names))
 
 
-def _interleave(rows_a: np.ndarray, a: np.ndarray, rows_b: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Rows ``a`` at ``rows_a`` and rows ``b`` at ``rows_b`` of one array (the two cover it)."""
-    if len(rows_b) == 0:
-        return a
-    out = np.empty((len(rows_a) + len(rows_b), *a.shape[1:]), a.dtype)
-    out[rows_a], out[rows_b] = a, b
-    return out
+@numba.njit(cache=True)
+def _actor_columns(
+    vrows: np.ndarray,
+    v_xy: np.ndarray,
+    v_angle: np.ndarray,
+    v_speed: np.ndarray,
+    prows: np.ndarray,
+    p_xy: np.ndarray,
+    p_angle: np.ndarray,
+    p_speed: np.ndarray,
+    back: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Centre x, y [m], yaw [rad, wrapped to [-pi, pi)] and speed of all actors in registration order,
+    from SUMO's vehicle (rows ``vrows``) and person (rows ``prows``) positions and angles (degrees
+    clockwise from north); ``back`` (n,) is SUMO's reference point to the box centre [m]."""
+    n = vrows.shape[0] + prows.shape[0]
+    x, y, yaw, speed = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    for rows, xy, angle, v in ((vrows, v_xy, v_angle, v_speed), (prows, p_xy, p_angle, p_speed)):
+        for k in range(rows.shape[0]):
+            i = rows[k]
+            heading = np.radians(90.0 - angle[k])
+            x[i] = xy[k, 0] - back[i] * np.cos(heading)
+            y[i] = xy[k, 1] - back[i] * np.sin(heading)
+            yaw[i] = (heading + np.pi) % (2.0 * np.pi) - np.pi
+            speed[i] = v[k]
+    return x, y, yaw, speed
 
 
 def remove_from_sumo(actor_id: str, is_person: bool = False) -> None:
