@@ -10,6 +10,10 @@
    vehicles (the CAVs as ordinary SUMO cars on their routes) and pedestrians as the world had when timing
    began, stepped with ``simulationStep`` only.
 
+``--replay`` adds a third run: our world again, fed the controls recorded in the first (the same
+trajectory, bit for bit) with no agent between ticks. The autopilot's work between ticks (~0.4 ms,
+~1.7 MB of temporaries) slows SUMO's next step (CPU caches); this run shows our tick without it.
+
 The last line is ``ratio_vs_sumo=<our ticks per second / bare SUMO steps per second>`` (goal >= 0.5).
 Peak memory is the process's maximum resident set size. The per-phase line splits our tick: "cavs"
 (validate, integrate, push), "sumo_step" (SUMO's step inside our loop), "background", "snapshot",
@@ -39,6 +43,7 @@ from cmudrive.agents.autopilot import LaneFollowingAutopilot
 from cmudrive.maps import load_map, resolve_map_path
 from cmudrive.sim.background import BackgroundActivity, BackgroundConfig
 from cmudrive.sim.demo import demo_routes
+from cmudrive.sim.dynamics import Controls
 from cmudrive.sim.sumo import start_sumo
 from cmudrive.sim.world import World, WorldConfig
 
@@ -92,7 +97,12 @@ def run_world(
     vehicles: int = 100,
     pedestrians: int = 50,
     quiet: bool = False,
+    controls_log: list[Controls] | None = None,
+    replay: bool = False,
 ) -> tuple[float, int, int, tuple]:
+    """Time ``ticks`` world ticks after the warm-up. The autopilot's controls are appended to
+    ``controls_log``; with ``replay``, the controls come from ``controls_log`` instead (same seed, same
+    controls: the same trajectory, bit for bit) and no agent runs between ticks."""
     road_map = load_map(town)
     routes = demo_routes(road_map, cavs, np.random.default_rng(seed))
     config = BackgroundConfig(
@@ -109,10 +119,15 @@ def run_world(
         for k in range(WARMUP_TICKS + ticks):
             if k == WARMUP_TICKS:
                 world.timing = dict.fromkeys(world.timing, 0.0)
-            rows, index = snap.cav_rows()
-            controls = pilot.controls(snap, rows, index)
+            if replay and controls_log is not None:
+                controls = controls_log[k]
+            else:
+                rows, index = snap.cav_rows()
+                controls = pilot.controls(snap, rows, index)
+                if controls_log is not None:
+                    controls_log.append(controls)
             if k == WARMUP_TICKS:
-                traffic = traffic_of_world() if not quiet else ([], [])
+                traffic = traffic_of_world() if not (quiet or replay) else ([], [])
                 actors_at_start = len(snap.ids)
             t0 = time.perf_counter()
             snap = world.tick(controls)
@@ -120,7 +135,7 @@ def run_world(
                 elapsed += time.perf_counter() - t0
         phases = ", ".join(f"{k} {v / ticks * 1e3:.2f}" for k, v in world.timing.items() if k != "ticks")
         if not quiet:
-            print(f"ours per phase [ms/tick]: {phases}")
+            print(f"ours{' replayed' if replay else ''} per phase [ms/tick]: {phases}")
         return elapsed, actors_at_start, len(snap.ids), traffic
 
 
@@ -198,6 +213,11 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--quick", action="store_true", help="400 ticks (well under a minute)")
     parser.add_argument("--grid", action="store_true", help="ticks/s table: CAV count x background density")
+    parser.add_argument(
+        "--replay",
+        action="store_true",
+        help="also time our tick replaying the recorded controls, with no agent work between ticks",
+    )
     parser.add_argument("--repeats", type=int, default=3, help="--grid: rounds over all cells (median)")
     args = parser.parse_args()
     if args.grid:
@@ -205,7 +225,11 @@ def main() -> None:
         run_grid(args.town, ticks, args.seed, args.repeats)
         return
     ticks = 400 if args.quick else args.ticks
-    ours, ours_start, ours_end, traffic = run_world(args.town, ticks, args.cavs, args.seed)
+    log: list[Controls] = []
+    ours, ours_start, ours_end, traffic = run_world(args.town, ticks, args.cavs, args.seed, controls_log=log)
+    replayed = 0.0
+    if args.replay:
+        replayed = run_world(args.town, ticks, args.cavs, args.seed, controls_log=log, replay=True)[0]
     bare, bare_start, bare_end = run_bare(args.town, ticks, args.seed, traffic)
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     ours_rate, bare_rate = ticks / ours, ticks / bare
@@ -219,6 +243,11 @@ def main() -> None:
         f"{bare_rate:.0f} steps/s"
     )
     print(f"peak memory {peak_mb:.0f} MB")
+    if args.replay:
+        print(
+            f"ours replaying the same controls without the autopilot: {replayed / ticks * 1e3:.2f} ms/tick, "
+            f"ratio {bare / replayed:.3f}"
+        )
     print(f"ratio_vs_sumo={ours_rate / bare_rate:.3f}")
 
 
