@@ -317,9 +317,7 @@ class World:
         events = detect_collisions(snap)
         if len(events):
             # pedestrians brushing past each other in a crowd are not a driving event
-            events = events.select(
-                (events.kind_a != _PEDESTRIAN) | (events.kind_b != _PEDESTRIAN)
-            )
+            events = events.select((events.kind_a != _PEDESTRIAN) | (events.kind_b != _PEDESTRIAN))
             self.collisions = events
             self._hold_sumo_actors_after_collisions(snap)
         else:
