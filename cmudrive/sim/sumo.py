@@ -115,6 +115,8 @@ class SumoSession:
     _static: _StaticColumns = field(default_factory=_StaticColumns)
     _last_ids: list[str] = field(default_factory=list)
     _columns_version: int = 0
+    _registered: int = 0  # registrations so far (add_vehicle, add_person)
+    _static_registered: int = 0  # ... when _static was built
     _last_speed: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     # ------------------------------------------------------------------ lifecycle
@@ -213,7 +215,10 @@ class SumoSession:
         )
 
     def _static_columns(self, ids: list[str]) -> _StaticColumns:
-        if ids != self._static.ids:
+        # rebuilt when the actors present change, or when one was (re-)registered (an id can come back
+        # as another type)
+        if ids != self._static.ids or self._registered != self._static_registered:
+            self._static_registered = self._registered
             self._columns_version += 1
             info = [self.actors[a] for a in ids]
             length = np.array([i.length for i in info], np.float64)
@@ -269,6 +274,7 @@ class SumoSession:
                 f"SUMO refused vehicle {vid} ({type_name}) on edges {edges[:3]}...: {exc}"
             ) from exc
         self.actors[vid] = SumoActor(t.kind, role, t.length, t.width)
+        self._registered += 1
 
     def add_person(
         self, pid: str, edges: list[str], depart_pos: float, arrival_pos: float, role: int
@@ -289,6 +295,7 @@ class SumoSession:
             remove_from_sumo(pid, is_person=True)  # a person without a plan would fail the next step
             raise SumoError(f"SUMO refused the walk of pedestrian {pid} ({edges[:3]}...): {exc}") from exc
         self.actors[pid] = SumoActor(t.kind, role, t.length, t.width, is_person=True)
+        self._registered += 1
 
     def override(
         self,

@@ -80,7 +80,8 @@ class LayerActors:
 class _FixedColumns:
     """Snapshot columns that only change when actors come or go; see ``World._fixed_columns``."""
 
-    key: tuple[bytes, list[str], int]  # active CAVs, layer actor ids, SumoArrays.columns_version
+    key: tuple[bytes, tuple[str, ...], tuple[str, ...], tuple[int, ...], int]
+    # active CAVs, layer actor ids, types and roles, SumoArrays.columns_version
     ids: np.ndarray
     kind: np.ndarray
     role: np.ndarray
@@ -417,10 +418,10 @@ class World:
     def _fixed_columns(self, cav: np.ndarray, cav_ids: list[str], sumo: SumoArrays) -> _FixedColumns:
         """The snapshot columns that change only when actors come or go (ids, kind, role, extents,
         validity): rebuilt then, shared read-only by the snapshots in between."""
-        key = (cav.tobytes(), self.layer.ids, sumo.columns_version)
+        L = self.layer
+        key = (cav.tobytes(), tuple(L.ids), tuple(L.type_names), tuple(L.role), sumo.columns_version)
         if self._fixed is not None and self._fixed.key == key:
             return self._fixed
-        L = self.layer
         cav_type = ACTOR_TYPES["cav"]
         layer_types = [ACTOR_TYPES[n] for n in L.type_names]
         n_c = len(cav)
@@ -440,7 +441,7 @@ class World:
         columns["valid"] = np.ones(len(columns["ids"]), bool)
         for array in columns.values():
             array.flags.writeable = False
-        self._fixed = _FixedColumns(key=(key[0], list(L.ids), key[2]), **columns)
+        self._fixed = _FixedColumns(key=key, **columns)
         return self._fixed
 
     def _straighten(self, sumo: SumoArrays, lane: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
