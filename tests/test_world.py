@@ -249,3 +249,20 @@ def test_sumo_car_hit_by_a_cav_stops_for_5_s_with_hazard_lights(mini_net: Path, 
         later = drive(world, round(0.8 * COLLISION_HOLD / DT), brake=1.0)[-1]  # 7 s after: driving on
         car = later.index_of("slow")
         assert later.speed[car] > 1.0 and not later.signals[car] & SIGNAL_BLINKER_EMERGENCY
+
+
+def test_snapshot_columns_follow_actors_that_come_and_go(mini_net: Path, mini: RoadMap) -> None:
+    """Ids, kinds and extents are shared read-only between ticks while nobody comes or goes, and follow
+    an actor replaced under the same id by one of another type (a cone, then a parked car)."""
+    with make_world(mini_net, mini) as world:
+        world.add_cav(route_from(mini, "CE_1", 90.0, "CE_1", 190.0), speed=5.0)
+        world.add_layer_actor("thing", "cone", 400.0, 400.0, 0.0, role=Role.PROP)  # off the road
+        first, second = drive(world, 2)
+        assert first.ids is second.ids and not second.length.flags.writeable
+        with pytest.raises(ValueError, match="read-only"):
+            second.kind[0] = 3
+        cone = second.length[second.index_of("thing")]
+        world.remove_layer_actor("thing")
+        world.add_layer_actor("thing", "parked_car", 400.0, 400.0, 0.0, role=Role.PROP)
+        (third,) = drive(world, 1)
+        assert third.length[third.index_of("thing")] > cone + 2.0  # [m] a car, not a cone

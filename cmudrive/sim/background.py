@@ -18,9 +18,9 @@ What is kept where, and why:
 Spawn points are precomputed once per map: points every ``spawn_spacing`` metres along every normal
 (non-junction) lane that some background vehicle type may use (vehicles; SUMO's lane permissions decide
 which type may spawn where, so bicycles only where bicycles may go) and along every sidewalk
-(pedestrians). A KD-tree finds the points near the CAVs; the distance, lane and heading tests are numpy
-over those points. Vehicles drive a route that SUMO's router finds (``simulation.findRoute``) from the
-spawn edge to a random far destination edge; pedestrians walk a route from
+(pedestrians). A KD-tree over the CAVs finds each point's nearest CAV; the distance, lane and heading
+tests are numpy over the points. Vehicles drive a route that SUMO's router finds
+(``simulation.findRoute``) from the spawn edge to a random far destination edge; pedestrians walk a route from
 ``simulation.findIntermodalRoute``. All random choices come from ``world.rng``, so a seeded route
 replays identically. Spawning and removal run every ``update_period`` ticks; nothing runs on the ticks
 in between.
@@ -143,7 +143,6 @@ class SpawnPoints:
     s: np.ndarray  # (M,) float64 arc length along the lane [m]
     heading: np.ndarray  # (M,) float64 lane heading [rad]
     slot: np.ndarray  # (M,) int64 number of the point along its lane (0, 1, ...)
-    tree: cKDTree
 
 
 def lane_points(road_map: RoadMap, lanes: np.ndarray, spacing: float, end_margin: float) -> SpawnPoints:
@@ -156,7 +155,7 @@ def lane_points(road_map: RoadMap, lanes: np.ndarray, spacing: float, end_margin
     s = (slot + 0.5) * spacing
     xy = road_map.index.frenet_to_xy(lane, s) if len(lane) else np.zeros((0, 2))
     heading = road_map.index.heading_at(lane, s) if len(lane) else np.zeros(0)
-    return SpawnPoints(xy, lane, s, heading, slot, cKDTree(xy if len(xy) else np.zeros((1, 2)) + 1e9))
+    return SpawnPoints(xy, lane, s, heading, slot)
 
 
 @dataclass
@@ -409,11 +408,12 @@ class BackgroundActivity:
         rng: np.random.Generator,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Indices of usable spawn points and their distance to the nearest CAV [m]."""
-        near = points.tree.query_ball_point(cavs.xy, r=radius)
-        idx = np.unique(np.concatenate([np.asarray(n, np.int64) for n in near] + [np.zeros(0, np.int64)]))
-        d2 = ((points.xy[idx, None, :] - cavs.xy[None, :, :]) ** 2).sum(axis=-1)  # (K, C)
-        nearest = d2.argmin(axis=1) if len(idx) else np.zeros(0, np.int64)
-        dist = np.sqrt(d2[np.arange(len(idx)), nearest])
+        # the nearest CAV of every point, kept within `radius` of it (<= radius: the bound is exclusive);
+        # one query over the points on a tree of <= 16 CAVs, ~4x cheaper than a ball query per CAV
+        # plus a (points x CAVs) distance table
+        dist, nearest = cKDTree(cavs.xy).query(points.xy, distance_upper_bound=np.nextafter(radius, np.inf))
+        idx = np.flatnonzero(np.isfinite(dist))
+        dist, nearest = dist[idx], nearest[idx]
         # every other slot of a lane this update, so two spawns of one batch are >= 2 spacings apart
         ok = (dist >= min_distance) & ~self._lane_removed[points.lane[idx]]
         ok &= points.slot[idx] % 2 == rng.integers(2)

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 GRAVITY = 9.81  # [m/s^2]
@@ -75,54 +76,108 @@ class ControlCheck:
     clipped: np.ndarray  # (n,) bool, some value of that CAV was out of range and clipped
 
 
+_CONTROL_NAMES = ("steer", "throttle", "brake")
+_CONTROL_LOW = np.array([[-1.0], [0.0], [0.0]])  # (3, 1) lower limits, in _CONTROL_NAMES order
+_CONTROL_HIGH = np.array([[1.0], [1.0], [1.0]])
+
+
 def validate_controls(controls: Controls, cav_ids: list[str] | np.ndarray) -> ControlCheck:
     """Reject non-finite controls (naming the CAV) and clip out-of-range ones (reported)."""
-    arrays = {
-        "steer": np.asarray(controls.steer, np.float64),
-        "throttle": np.asarray(controls.throttle, np.float64),
-        "brake": np.asarray(controls.brake, np.float64),
-    }
     n = len(cav_ids)
-    for name, value in arrays.items():
+    values = [np.asarray(getattr(controls, name), np.float64) for name in _CONTROL_NAMES]
+    for name, value in zip(_CONTROL_NAMES, values, strict=True):
         if value.shape != (n,):
             raise ControlError(f"{name} has shape {value.shape}, expected ({n},): one value per active CAV")
-        bad = np.flatnonzero(~np.isfinite(value))
-        if len(bad):
-            i = int(bad[0])
-            raise ControlError(f"CAV {cav_ids[i]}: {name} is {value[i]} (controls must be finite)")
-    steer = np.clip(arrays["steer"], -1.0, 1.0)
-    throttle = np.clip(arrays["throttle"], 0.0, 1.0)
-    brake = np.clip(arrays["brake"], 0.0, 1.0)
-    clipped = (steer != arrays["steer"]) | (throttle != arrays["throttle"]) | (brake != arrays["brake"])
-    return ControlCheck(Controls(steer, throttle, brake), clipped)
+    raw = np.stack(values)  # (3, n)
+    if not np.isfinite(raw).all():
+        for name, value in zip(_CONTROL_NAMES, raw, strict=True):
+            bad = np.flatnonzero(~np.isfinite(value))
+            if len(bad):
+                i = int(bad[0])
+                raise ControlError(f"CAV {cav_ids[i]}: {name} is {value[i]} (controls must be finite)")
+    fixed = np.clip(raw, _CONTROL_LOW, _CONTROL_HIGH)
+    clipped = (fixed != raw).any(axis=0)
+    return ControlCheck(Controls(fixed[0], fixed[1], fixed[2]), clipped)
 
 
 def step_bicycle(
     state: CavState, controls: Controls, params: VehicleParams, dt: float, friction: float = 1.0
 ) -> CavState:
-    """Advance all CAVs by ``dt`` seconds. ``controls`` must already be validated."""
+    """Advance all CAVs by ``dt`` seconds. ``controls`` must already be validated.
+
+    One compiled loop over the CAVs (numba): numpy's ~40 operations on 16-element arrays cost ~30 us
+    per tick, the loop ~2 us."""
     p = params
-    v = state.speed
-    # longitudinal: throttle force fades with speed; brake scaled by road friction; resistances oppose motion
-    drive = controls.throttle * p.max_accel * np.clip(1.0 - (v / p.max_speed) ** 2, 0.0, 1.0)
-    resist = np.where(v > 0.0, p.rolling + p.drag * v**2, 0.0)
-    brake = controls.brake * p.max_brake * friction
-    accel = drive - resist - brake
-    v_new = np.maximum(v + accel * dt, 0.0)  # brakes and drag stop the car; they never reverse it
-    accel = (v_new - v) / dt
-    # lateral: target wheel angle (CARLA: + steer = right = clockwise, i.e. negative in our frame),
-    # limited by the actuator rate and by the grip available at this speed
-    target = -controls.steer * p.max_steer
-    grip = p.max_lateral_accel * friction
-    v_mid = 0.5 * (v + v_new)
-    grip_limit = np.arctan(p.wheelbase * grip / np.maximum(v_mid, 1e-3) ** 2)
-    target = np.clip(target, -grip_limit, grip_limit)
-    max_change = p.steer_rate * dt
-    delta = state.steer_angle + np.clip(target - state.steer_angle, -max_change, max_change)
-    beta = np.arctan(p.rear_to_cg / p.wheelbase * np.tan(delta))  # slip angle at the reference point
-    yaw_rate = v_mid / p.rear_to_cg * np.sin(beta)
-    yaw_mid = state.yaw + 0.5 * yaw_rate * dt
-    x = state.x + v_mid * np.cos(yaw_mid + beta) * dt
-    y = state.y + v_mid * np.sin(yaw_mid + beta) * dt
-    yaw = (state.yaw + yaw_rate * dt + np.pi) % (2.0 * np.pi) - np.pi
-    return CavState(x=x, y=y, yaw=yaw, speed=v_new, steer_angle=delta, accel=accel)
+    out = _bicycle(
+        state.x,
+        state.y,
+        state.yaw,
+        state.speed,
+        state.steer_angle,
+        np.asarray(controls.steer, np.float64),
+        np.asarray(controls.throttle, np.float64),
+        np.asarray(controls.brake, np.float64),
+        np.array(
+            [
+                p.wheelbase,
+                p.rear_to_cg,
+                p.max_steer,
+                p.steer_rate,
+                p.max_accel,
+                p.max_speed,
+                p.max_brake,
+                p.rolling,
+                p.drag,
+                p.max_lateral_accel,
+            ]
+        ),
+        dt,
+        friction,
+    )  # (6, n): x, y, yaw, speed, steer_angle, accel
+    return CavState(*out)
+
+
+@numba.njit(cache=True)
+def _bicycle(
+    x0: np.ndarray,
+    y0: np.ndarray,
+    yaw0: np.ndarray,
+    v0: np.ndarray,
+    steer_angle0: np.ndarray,
+    steer: np.ndarray,
+    throttle: np.ndarray,
+    brake_input: np.ndarray,
+    params: np.ndarray,
+    dt: float,
+    friction: float,
+) -> np.ndarray:
+    """(6, n) new x, y, yaw, speed, steer angle, accel of n CAVs; ``params`` in VehicleParams order."""
+    wheelbase, rear_to_cg, max_steer, steer_rate = params[0], params[1], params[2], params[3]
+    max_accel, max_speed, max_brake, rolling, drag, max_lat = params[4:10]
+    out = np.empty((6, x0.shape[0]))
+    for i in range(x0.shape[0]):
+        v = v0[i]
+        # longitudinal: throttle force fades with speed; brake scaled by road friction; resistances oppose
+        # motion
+        drive = throttle[i] * max_accel * min(max(1.0 - (v / max_speed) ** 2, 0.0), 1.0)
+        resist = rolling + drag * v**2 if v > 0.0 else 0.0
+        brake = brake_input[i] * max_brake * friction
+        v_new = max(v + (drive - resist - brake) * dt, 0.0)  # brakes and drag stop the car, never reverse it
+        # lateral: target wheel angle (CARLA: + steer = right = clockwise, i.e. negative in our frame),
+        # limited by the actuator rate and by the grip available at this speed
+        target = -steer[i] * max_steer
+        v_mid = 0.5 * (v + v_new)
+        grip_limit = np.arctan(wheelbase * max_lat * friction / max(v_mid, 1e-3) ** 2)
+        target = min(max(target, -grip_limit), grip_limit)
+        max_change = steer_rate * dt
+        delta = steer_angle0[i] + min(max(target - steer_angle0[i], -max_change), max_change)
+        beta = np.arctan(rear_to_cg / wheelbase * np.tan(delta))  # slip angle at the reference point
+        yaw_rate = v_mid / rear_to_cg * np.sin(beta)
+        yaw_mid = yaw0[i] + 0.5 * yaw_rate * dt
+        out[0, i] = x0[i] + v_mid * np.cos(yaw_mid + beta) * dt
+        out[1, i] = y0[i] + v_mid * np.sin(yaw_mid + beta) * dt
+        out[2, i] = (yaw0[i] + yaw_rate * dt + np.pi) % (2.0 * np.pi) - np.pi
+        out[3, i] = v_new
+        out[4, i] = delta
+        out[5, i] = (v_new - v) / dt
+    return out

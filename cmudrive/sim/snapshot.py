@@ -7,6 +7,10 @@ props, each group in a deterministic order (the order SUMO inserted them). ``A``
 Poses are of the *centre* of the actor's bounding box in the map frame (x east, y north [m]; yaw
 counter-clockwise from +x [rad]); SUMO's own position (front bumper, angle clockwise from north) is
 converted when reading.
+
+A snapshot is a record: never write into its arrays. The world shares the columns that change only when
+actors come or go (``ids``, ``kind``, ``role``, ``length``, ``width``, ``valid``) and ``tls_state``
+between consecutive snapshots, as read-only arrays; copy before modifying (``select`` returns copies).
 """
 
 from __future__ import annotations

@@ -25,13 +25,20 @@ class TrafficLights:
         self.map = road_map
         self.ids = [str(t) for t in road_map.tls_ids]
         self._forced: dict[str, tuple[str, int]] = {}  # tls -> (program, phase) to restore
+        self._last_states: list[str] | None = None
+        self._last_array = np.zeros(0, dtype=str)
 
     def read(self) -> np.ndarray:
-        """(T,) current signal string of each light, in map order."""
+        """(T,) current signal string of each light, in map order. Lights change every few seconds, so
+        the array is rebuilt only when a string changed and shared (read-only) by the ticks between."""
         import libsumo
 
-        get = libsumo.trafficlight.getRedYellowGreenState
-        return np.array([get(t) for t in self.ids], dtype=str)
+        states = list(map(libsumo.trafficlight.getRedYellowGreenState, self.ids))
+        if states != self._last_states:
+            self._last_states = states
+            self._last_array = np.array(states, dtype=str)
+            self._last_array.flags.writeable = False
+        return self._last_array
 
     def link_states(self, tls_state: np.ndarray) -> np.ndarray:
         """(L,) one signal character per map link ('O' where the link has no light)."""

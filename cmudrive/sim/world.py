@@ -23,10 +23,12 @@ The world owns one libsumo simulation; use it as a context manager (or call ``cl
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from itertools import repeat
 from pathlib import Path
 from time import perf_counter
 from typing import TYPE_CHECKING
 
+import numba
 import numpy as np
 
 from cmudrive.maps import RoadMap, Route, load_map, resolve_map_path
@@ -45,6 +47,8 @@ TICK_PHASES = ("cavs", "sumo_step", "background", "snapshot", "collisions")  # W
 COLLISION_HOLD = 5.0  # [s] a SUMO actor that hit something waits this long before driving on
 MAX_YAW_TO_LANE = np.radians(15.0)  # [rad] a SUMO vehicle on a normal lane points at most this far off it
 BRAKE_LIGHT_THRESHOLD = 0.05  # brake input above which a CAV shows brake lights
+_PEDESTRIAN = int(ActorKind.PEDESTRIAN)  # plain ints in the per-tick code: enum attribute lookups are slow
+_BACKGROUND = int(Role.BACKGROUND)
 
 
 @dataclass(frozen=True)
@@ -70,6 +74,43 @@ class LayerActors:
     y: np.ndarray = field(default_factory=lambda: np.zeros(0))
     yaw: np.ndarray = field(default_factory=lambda: np.zeros(0))
     speed: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+
+@dataclass(frozen=True)
+class _FixedColumns:
+    """Snapshot columns that only change when actors come or go; see ``World._fixed_columns``."""
+
+    key: tuple[bytes, tuple[str, ...], tuple[str, ...], tuple[int, ...], int]
+    # active CAVs, layer actor ids, types and roles, SumoArrays.columns_version
+    ids: np.ndarray
+    kind: np.ndarray
+    role: np.ndarray
+    length: np.ndarray
+    width: np.ndarray
+    valid: np.ndarray
+
+
+@numba.njit(cache=True)
+def _turn_towards_lane(
+    x: np.ndarray,
+    y: np.ndarray,
+    yaw: np.ndarray,
+    half_len: np.ndarray,
+    rows: np.ndarray,
+    lane_heading: np.ndarray,
+    max_off: float,
+) -> None:
+    """In place: turn the boxes at ``rows`` about their front-bumper centre until they point at most
+    ``max_off`` [rad] off ``lane_heading`` (one value per row); yaw wrapped to [-pi, pi)."""
+    for k in range(rows.shape[0]):
+        i = rows[k]
+        deviation = (yaw[i] - lane_heading[k] + np.pi) % (2.0 * np.pi) - np.pi
+        bounded = lane_heading[k] + min(max(deviation, -max_off), max_off)
+        front_x = x[i] + half_len[i] * np.cos(yaw[i])
+        front_y = y[i] + half_len[i] * np.sin(yaw[i])
+        x[i] = front_x - half_len[i] * np.cos(bounded)
+        y[i] = front_y - half_len[i] * np.sin(bounded)
+        yaw[i] = (bounded + np.pi) % (2.0 * np.pi) - np.pi
 
 
 class World:
@@ -103,6 +144,7 @@ class World:
         self._held: dict[str, tuple[float, float]] = {}  # SUMO actor -> (hold ends [s], speed to restore)
         self.background: BackgroundActivity | None = None  # keeps traffic around the CAVs when set
         self.last_snapshot: Snapshot | None = None
+        self._fixed: _FixedColumns | None = None  # see _fixed_columns
         # wall-clock seconds spent per tick phase, summed over ticks (and the tick count): for profiling
         self.timing: dict[str, float] = dict.fromkeys((*TICK_PHASES, "ticks"), 0.0)
 
@@ -262,8 +304,9 @@ class World:
         self._advance_cavs(active, check.controls)
         self._push_layer()
         t1 = perf_counter()
-        self.sumo.step()
-        self._reinsert_arrived_cavs(active)
+        arrived = self.sumo.step()
+        if not arrived.isdisjoint(self._cav_in_sumo):
+            self._reinsert_arrived_cavs(active, arrived)
         self.step_count += 1
         t2 = perf_counter()
         if self.background is not None:
@@ -273,11 +316,13 @@ class World:
         snap = self.snapshot()
         t4 = perf_counter()
         events = detect_collisions(snap)
-        # pedestrians brushing past each other in a crowd are not a driving event
-        self.collisions = events.select(
-            (events.kind_a != ActorKind.PEDESTRIAN) | (events.kind_b != ActorKind.PEDESTRIAN)
-        )
-        self._hold_sumo_actors_after_collisions(snap)
+        if len(events):
+            # pedestrians brushing past each other in a crowd are not a driving event
+            events = events.select((events.kind_a != _PEDESTRIAN) | (events.kind_b != _PEDESTRIAN))
+            self.collisions = events
+            self._hold_sumo_actors_after_collisions(snap)
+        else:
+            self.collisions = events
         self.last_snapshot = snap
         t5 = perf_counter()
         for phase, dt in zip(TICK_PHASES, (t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4), strict=True):
@@ -309,11 +354,8 @@ class World:
                 [L.ids[i] for i in rows], L.x[rows], L.y[rows], L.yaw[rows], L.speed[rows], length
             )
 
-    def _reinsert_arrived_cavs(self, active: np.ndarray) -> None:
+    def _reinsert_arrived_cavs(self, active: np.ndarray, arrived: set[str]) -> None:
         """SUMO removes a vehicle at the end of its route; a CAV lives on until the evaluator ends it."""
-        import libsumo
-
-        arrived = set(libsumo.simulation.getArrivedIDList())
         for i in active.tolist():
             if self.cav_ids[i] in arrived:
                 self._cav_in_sumo.discard(self.cav_ids[i])
@@ -326,9 +368,8 @@ class World:
         st = self.cav_state
         cav = np.flatnonzero(self.cav_active)
         cav_ids = [self.cav_ids[i] for i in cav]
-        cav_type = ACTOR_TYPES["cav"]
+        rows = slice(None) if len(cav) == len(self.cav_ids) else cav  # a view when every CAV is active
         L = self.layer
-        layer_types = [ACTOR_TYPES[n] for n in L.type_names]
         layer_lane = (
             m.index.nearest_lane(np.stack([L.x, L.y], axis=1), max_distance=2.0).lane
             if L.ids
@@ -336,46 +377,72 @@ class World:
         )
         sumo = self.sumo.read(extra=cav_ids)
         lookup = m._lane_lookup
-        sumo_lane = np.array([lookup.get(lid, -1) for lid in sumo.lane_ids], np.int32)
+        sumo_lane = np.fromiter(map(lookup.get, sumo.lane_ids, repeat(-1)), np.int32, len(sumo.lane_ids))
         sumo_x, sumo_y, sumo_yaw = self._straighten(sumo, sumo_lane)
         # a CAV's lane is where SUMO mapped it (heading-aware, within MATCH_RADIUS); off the road: -1
         cav_lane = [
             -1 if off else lookup.get(lid, -1)
-            for lid, off in zip(sumo.extra_lane_ids, self._cav_off_road[cav], strict=True)
+            for lid, off in zip(sumo.extra_lane_ids, self._cav_off_road[rows].tolist(), strict=True)
         ]
-        n_c, n_l, n_s = len(cav), len(L.ids), len(sumo.ids)
+        fixed = self._fixed_columns(cav, cav_ids, sumo)
+        n_c, n_l = len(cav), len(L.ids)
         signals = np.concatenate(
             [
-                np.where(self._cav_brake[cav] > BRAKE_LIGHT_THRESHOLD, SIGNAL_BRAKELIGHT, 0),
+                np.where(self._cav_brake[rows] > BRAKE_LIGHT_THRESHOLD, SIGNAL_BRAKELIGHT, 0),
                 np.zeros(n_l, np.int32),
                 sumo.signals,
             ]
         ).astype(np.int32)
         if self._held:  # SUMO actors waiting after a collision show hazard lights
-            held = np.isin(np.array(sumo.ids, dtype=str), list(self._held))
+            held = np.isin(fixed.ids[n_c + n_l :], list(self._held))
             signals[n_c + n_l :][held] |= SIGNAL_BLINKER_EMERGENCY
         return Snapshot(
             step=self.step_count,
             time=self.time,
-            ids=np.array(cav_ids + L.ids + sumo.ids, dtype=str),
-            kind=np.concatenate(
-                [np.full(n_c, cav_type.kind), [t.kind for t in layer_types], sumo.kind]
-            ).astype(np.int8),
-            role=np.concatenate([np.full(n_c, Role.CAV), L.role, sumo.role]).astype(np.int8),
-            x=np.concatenate([st.x[cav], L.x, sumo_x]),
-            y=np.concatenate([st.y[cav], L.y, sumo_y]),
-            yaw=np.concatenate([st.yaw[cav], L.yaw, sumo_yaw]),
-            speed=np.concatenate([st.speed[cav], L.speed, sumo.speed]),
-            accel=np.concatenate([st.accel[cav], np.zeros(n_l), sumo.accel]),
-            length=np.concatenate(
-                [np.full(n_c, cav_type.length), [t.length for t in layer_types], sumo.length]
-            ),
-            width=np.concatenate([np.full(n_c, cav_type.width), [t.width for t in layer_types], sumo.width]),
+            ids=fixed.ids,
+            kind=fixed.kind,
+            role=fixed.role,
+            x=np.concatenate([st.x[rows], L.x, sumo_x]),
+            y=np.concatenate([st.y[rows], L.y, sumo_y]),
+            yaw=np.concatenate([st.yaw[rows], L.yaw, sumo_yaw]),
+            speed=np.concatenate([st.speed[rows], L.speed, sumo.speed]),
+            accel=np.concatenate([st.accel[rows], np.zeros(n_l), sumo.accel]),
+            length=fixed.length,
+            width=fixed.width,
             lane=np.concatenate([cav_lane, layer_lane, sumo_lane]).astype(np.int32),
             signals=signals,
-            valid=np.ones(n_c + n_l + n_s, bool),
+            valid=fixed.valid,
             tls_state=self.lights.read(),
         )
+
+    def _fixed_columns(self, cav: np.ndarray, cav_ids: list[str], sumo: SumoArrays) -> _FixedColumns:
+        """The snapshot columns that change only when actors come or go (ids, kind, role, extents,
+        validity): rebuilt then, shared read-only by the snapshots in between."""
+        L = self.layer
+        key = (cav.tobytes(), tuple(L.ids), tuple(L.type_names), tuple(L.role), sumo.columns_version)
+        if self._fixed is not None and self._fixed.key == key:
+            return self._fixed
+        cav_type = ACTOR_TYPES["cav"]
+        layer_types = [ACTOR_TYPES[n] for n in L.type_names]
+        n_c = len(cav)
+        columns = {
+            "ids": np.array(cav_ids + L.ids + sumo.ids, dtype=str),
+            "kind": np.concatenate(
+                [np.full(n_c, cav_type.kind), [t.kind for t in layer_types], sumo.kind]
+            ).astype(np.int8),
+            "role": np.concatenate([np.full(n_c, Role.CAV), L.role, sumo.role]).astype(np.int8),
+            "length": np.concatenate(
+                [np.full(n_c, cav_type.length), [t.length for t in layer_types], sumo.length]
+            ).astype(np.float64),
+            "width": np.concatenate(
+                [np.full(n_c, cav_type.width), [t.width for t in layer_types], sumo.width]
+            ).astype(np.float64),
+        }
+        columns["valid"] = np.ones(len(columns["ids"]), bool)
+        for array in columns.values():
+            array.flags.writeable = False
+        self._fixed = _FixedColumns(key=key, **columns)
+        return self._fixed
 
     def _straighten(self, sumo: SumoArrays, lane: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Centre x, y and yaw of SUMO's actors, with vehicles on normal lanes pointing at most
@@ -385,19 +452,12 @@ class World:
         reference point."""
         m = self.map
         x, y, yaw = sumo.x.copy(), sumo.y.copy(), sumo.yaw.copy()
-        rows = np.flatnonzero((lane >= 0) & (sumo.kind != ActorKind.PEDESTRIAN))
+        rows = np.flatnonzero((lane >= 0) & (sumo.kind != _PEDESTRIAN))
         rows = rows[~m.lane_internal[lane[rows]]]
         if len(rows) == 0:
             return x, y, yaw
         lane_heading = m.index.heading_at(lane[rows], sumo.lane_pos[rows])
-        deviation = (yaw[rows] - lane_heading + np.pi) % (2.0 * np.pi) - np.pi
-        bounded = lane_heading + np.clip(deviation, -MAX_YAW_TO_LANE, MAX_YAW_TO_LANE)
-        half = 0.5 * sumo.length[rows]
-        front_x = x[rows] + half * np.cos(yaw[rows])
-        front_y = y[rows] + half * np.sin(yaw[rows])
-        x[rows] = front_x - half * np.cos(bounded)
-        y[rows] = front_y - half * np.sin(bounded)
-        yaw[rows] = (bounded + np.pi) % (2.0 * np.pi) - np.pi
+        _turn_towards_lane(x, y, yaw, 0.5 * sumo.length, rows, lane_heading, MAX_YAW_TO_LANE)
         return x, y, yaw
 
     def _empty_snapshot(self) -> Snapshot:
@@ -412,7 +472,7 @@ class World:
             for me, other in ((a, b), (b, a)):
                 actor = str(snap.ids[me])
                 info = self.sumo.actors.get(actor)
-                if info is None or snap.role[other] == Role.BACKGROUND or actor in self._held:
+                if info is None or snap.role[other] == _BACKGROUND or actor in self._held:
                     continue
                 if info.is_person:  # a person's "speed" is its walking speed: keep it to restore it
                     self._held[actor] = (self.time + COLLISION_HOLD, libsumo.person.getMaxSpeed(actor))
