@@ -166,17 +166,41 @@ def _sat_penetration(
     x: np.ndarray, y: np.ndarray, c: np.ndarray, s: np.ndarray, hl: np.ndarray, hw: np.ndarray, i: int, j: int
 ) -> float:
     """Minimum overlap over the 4 face normals of boxes i and j [m]; <= 0: apart."""
-    dx, dy = x[j] - x[i], y[j] - y[i]
-    cos_rel = abs(c[i] * c[j] + s[i] * s[j])  # |cos(yaw_j - yaw_i)|
-    sin_rel = abs(s[j] * c[i] - c[j] * s[i])  # |sin(yaw_j - yaw_i)|
-    # axes: heading of i, left normal of i, heading of j, left normal of j;
-    # overlap on an axis = radius of i + radius of j - |centre offset . axis|
+    return _box_overlap(x[i], y[i], c[i], s[i], hl[i], hw[i], x[j], y[j], c[j], s[j], hl[j], hw[j])
+
+
+@numba.njit(cache=True)
+def _box_overlap(
+    xa: float, ya: float, ca: float, sa: float, hla: float, hwa: float,
+    xb: float, yb: float, cb: float, sb: float, hlb: float, hwb: float,
+) -> float:  # fmt: skip
+    """SAT overlap of box a and box b (centre, cos/sin of the heading, half extents) [m]; <= 0: apart."""
+    dx, dy = xb - xa, yb - ya
+    cos_rel = abs(ca * cb + sa * sb)  # |cos(yaw_b - yaw_a)|
+    sin_rel = abs(sb * ca - cb * sa)  # |sin(yaw_b - yaw_a)|
+    # axes: heading of a, left normal of a, heading of b, left normal of b;
+    # overlap on an axis = radius of a + radius of b - |centre offset . axis|
     return min(
-        hl[i] + hl[j] * cos_rel + hw[j] * sin_rel - abs(dx * c[i] + dy * s[i]),
-        hw[i] + hl[j] * sin_rel + hw[j] * cos_rel - abs(dy * c[i] - dx * s[i]),
-        hl[j] + hl[i] * cos_rel + hw[i] * sin_rel - abs(dx * c[j] + dy * s[j]),
-        hw[j] + hl[i] * sin_rel + hw[i] * cos_rel - abs(dy * c[j] - dx * s[j]),
+        hla + hlb * cos_rel + hwb * sin_rel - abs(dx * ca + dy * sa),
+        hwa + hlb * sin_rel + hwb * cos_rel - abs(dy * ca - dx * sa),
+        hlb + hla * cos_rel + hwa * sin_rel - abs(dx * cb + dy * sb),
+        hwb + hla * sin_rel + hwa * cos_rel - abs(dy * cb - dx * sb),
     )
+
+
+def pair_penetration(ta: np.ndarray, tb: np.ndarray) -> np.ndarray:
+    """(P,) SAT overlap [m] of the box pairs (ta[p], tb[p]), each a (P, 6) table of rows x, y, cos yaw,
+    sin yaw, half length, half width; <= 0: apart (the test ``detect_collisions`` applies to actors)."""
+    return _pair_penetration(np.ascontiguousarray(ta, np.float64), np.ascontiguousarray(tb, np.float64))
+
+
+@numba.njit(cache=True)
+def _pair_penetration(ta: np.ndarray, tb: np.ndarray) -> np.ndarray:
+    out = np.empty(ta.shape[0])
+    for p in range(ta.shape[0]):
+        a, b = ta[p], tb[p]
+        out[p] = _box_overlap(a[0], a[1], a[2], a[3], a[4], a[5], b[0], b[1], b[2], b[3], b[4], b[5])
+    return out
 
 
 @numba.njit(cache=True)

@@ -17,7 +17,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from cmudrive.maps.scenery import SceneryKind, StaticScenery
-from cmudrive.sim.collisions import TOUCH_TOLERANCE, _sat_penetration
+from cmudrive.sim.collisions import TOUCH_TOLERANCE, pair_penetration
 
 
 def box_table(
@@ -70,7 +70,7 @@ def scenery_contacts(boxes: np.ndarray, index: SceneryIndex) -> tuple[np.ndarray
     gap = np.hypot(*(boxes[row, :2] - index.table[other, :2]).T)
     near = gap <= radius[row] + index.radius[other]
     row, other = row[near], other[near]
-    hit = _sat_penetration(boxes[row], index.table[other]) > TOUCH_TOLERANCE
+    hit = pair_penetration(boxes[row], index.table[other]) > TOUCH_TOLERANCE
     row, other = row[hit], other[hit]
     order = np.lexsort((other, row))
     return row[order], other[order]
