@@ -1,0 +1,116 @@
+"""The obstacle family on the ego lane (Accident, ConstructionObstacle, ParkedObstacle, HazardAtSideLane)
+on our interurban ring road and on CARLA's Town03: CAV 0 drives its route with the PID agent (which
+ignores everyone), the obstacles appear where the reference puts them (metres from the trigger point,
+fractions of the lane width toward ``direction``), block CAV 0's lane (the PID agent hits them; CAV 1 on
+the passing lane does not), and are cleared once CAV 0 is 50 m past the last one."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cmudrive.bench import EvalConfig, RouteSpec
+from cmudrive.bench.records import RouteResult
+from cmudrive.maps import RoadMap, load_map
+from cmudrive.sim.background import BackgroundConfig
+from tests.scenario_helpers import cav_track, frenet, lane_cav, run, scenario, track, trigger
+
+T_S = 40.0  # [m] trigger point's arc length on CAV 0's lane
+SCENES = {"interurban": ("R1a-R2a_0", "R1a-R2a_1"), "Town03": ("76_3", "76_4")}
+
+
+def scene(town: str, kind: str, **params: str) -> tuple[RoadMap, RouteSpec]:
+    m = load_map(town)
+    lane, left = SCENES[town]
+    cavs = (lane_cav(m, 0, lane, 20.0, 230.0), lane_cav(m, 1, left, 20.0, 230.0))
+    sc = scenario(kind, trigger(m, lane, T_S), **params)
+    return m, RouteSpec(f"{kind}_{town}", town, "ClearNoon", 0, cavs, (sc,))
+
+
+def layout(kind: str, w: float) -> list[tuple[str, float, float]]:
+    """(actor suffix, metres past T along the lane, lateral offset [m], + left) for distance = 40 m."""
+    if kind == "Accident":
+        return [("police", 40.0, -0.3 * w), ("car_a", 50.0, -0.3 * w), ("car_b", 56.0, -0.3 * w)]
+    if kind == "ParkedObstacle":
+        return [("car", 40.0, -0.35 * w)]
+    if kind == "HazardAtSideLane":
+        return [("bike1", 40.0, -0.275 * w), ("bike2", 49.0, -0.275 * w)]
+    cones = [(f"cone{k}", 40.0 + a, 0.425 * w) for k, a in enumerate((2.0, 4.0, 6.0, 8.0))]
+    cones += [(f"cone{4 + k}", 48.0, 0.425 * w - (k + 1.0)) for k in range(3)]
+    return [("board", 35.0, 0.0), *cones]
+
+
+END_PAST_T = {"Accident": 106.0, "ParkedObstacle": 90.0, "ConstructionObstacle": 98.0}  # [m] E past T
+
+
+def scenario_collisions(result: RouteResult, cav: int) -> list[str]:
+    return [
+        inf.actor or ""
+        for key, events in result.cavs[cav].infractions.items()
+        if key.startswith("collisions")
+        for inf in events
+        if (inf.actor or "").startswith("S1:")
+    ]
+
+
+@pytest.mark.parametrize("town", ["interurban", "Town03"])
+@pytest.mark.parametrize("kind", ["Accident", "ParkedObstacle", "ConstructionObstacle", "HazardAtSideLane"])
+def test_obstacles_appear_block_the_lane_and_clear(kind: str, town: str, tmp_path: Path) -> None:
+    m, spec = scene(town, kind, distance="40")
+    lane = SCENES[town][0]
+    w = float(m.lane_width[m.lane(lane)])
+    result, log = run(spec, tmp_path)
+    assert result.scenario_simulated is True
+    cav0 = cav_track(log, 0)
+    s_cav, _ = frenet(m, lane, cav0[:, :2])
+    for suffix, ahead, offset in layout(kind, w):
+        tr = track(log, f"S1:{suffix}")
+        present = np.flatnonzero(~np.isnan(tr[:, 0]))
+        first, last = int(present[0]), int(present[-1])
+        if kind == "ConstructionObstacle":  # hidden until activation: CAV 0 2 m short of T
+            assert first > 0 and T_S - 2.5 < s_cav[first] < T_S + 1.0
+        else:  # present from instantiation (route start)
+            assert first == 0
+        s, d = frenet(m, lane, tr[first, :2])
+        assert s[0] == pytest.approx(T_S + ahead, abs=0.6), suffix
+        assert d[0] == pytest.approx(offset, abs=0.15), suffix
+        assert abs(d[0]) < w  # the actor's box reaches into CAV 0's lane
+        if kind in END_PAST_T:  # cleared once CAV 0 is ahead of E (on a curve, the lane's s is near E's)
+            assert s_cav[last + 1] == pytest.approx(T_S + END_PAST_T[kind], abs=2.0), suffix
+    # the PID agent drives into the blockade; CAV 1 on the passing lane goes by untouched
+    assert scenario_collisions(result, 0)
+    assert scenario_collisions(result, 1) == []
+    if kind != "HazardAtSideLane":  # the warning sign stands beside T, off the driving lanes
+        sign = track(log, "S1:sign")[0, :2]
+        assert not m.index.on_driving_lane(sign[None])[0]
+        assert (
+            np.linalg.norm(sign - m.index.frenet_to_xy(np.array([m.lane(lane)]), np.array([T_S]))[0]) < 12.0
+        )
+
+
+def test_cyclists_ride_at_bicycle_speed_then_stop(tmp_path: Path) -> None:
+    """bicycle_speed is km/h: 10 km/h = 2.78 m/s; after bicycle_drive_distance (5 m) they stand."""
+    m, spec = scene(
+        "interurban", "HazardAtSideLane", distance="40", bicycle_speed="10", bicycle_drive_distance="5"
+    )
+    _, log = run(spec, tmp_path)
+    bike = track(log, "S1:bike1")
+    present = np.flatnonzero(~np.isnan(bike[:, 0]))
+    riding = present[bike[present, 3] > 0.0]
+    assert bike[riding, 3] == pytest.approx(10.0 / 3.6)
+    assert len(riding) * 0.05 == pytest.approx(5.0 / (10.0 / 3.6), abs=0.1)
+    moved = np.linalg.norm(bike[present[-1], :2] - bike[0, :2])
+    assert moved == pytest.approx(5.0, abs=0.05) and bike[present[-1], 3] == 0.0
+    _, d = frenet(m, "R1a-R2a_0", bike[present[-1], :2])
+    assert d[0] == pytest.approx(-0.275 * 3.5, abs=0.1)  # still at the right edge of the lane
+
+
+def test_accident_with_background_traffic_on_a_carla_town(tmp_path: Path) -> None:
+    """LeaveSpace and MaxSpeed act on real background traffic without breaking the run."""
+    _, spec = scene("Town03", "Accident", distance="40", speed="30")
+    config = EvalConfig(background=BackgroundConfig(), tick_cap=400)
+    result, log = run(spec, tmp_path, config=config)
+    assert result.scenario_simulated is True
+    assert not np.isnan(track(log, "S1:police")[0, 0])
