@@ -14,6 +14,13 @@ import numpy as np
 from cmudrive.bench.criteria import RouteCriteria
 from cmudrive.bench.routes import RouteSpec
 from cmudrive.bench.scenarios.base import RouteProgress, Scenario, ScenarioConfig, ScenarioContext
+from cmudrive.bench.scenarios.crossings import (
+    DynamicObjectCrossing,
+    ParkingCrossingPedestrian,
+    PedestrianCrossing,
+    VehicleTurningRoute,
+    VehicleTurningRoutePedestrian,
+)
 from cmudrive.bench.scenarios.obstacles import (
     Accident,
     ConstructionObstacle,
@@ -31,6 +38,11 @@ REGISTRY: dict[str, type[Scenario]] = {
         ConstructionObstacle,
         HazardAtSideLane,
         ParkedObstacle,
+        DynamicObjectCrossing,
+        ParkingCrossingPedestrian,
+        PedestrianCrossing,
+        VehicleTurningRoute,
+        VehicleTurningRoutePedestrian,
     )
 }
 
