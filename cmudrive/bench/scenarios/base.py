@@ -31,7 +31,7 @@ import numpy as np
 from cmudrive.bench.criteria import RouteCriteria
 from cmudrive.bench.routes import ScenarioSpec
 from cmudrive.bench.scenarios.params import Param, ScenarioError, parse_params
-from cmudrive.bench.scenarios.placement import LanePoint
+from cmudrive.bench.scenarios.placement import LanePoint, walk
 from cmudrive.maps import RoadMap, Route
 from cmudrive.sim.snapshot import Role, Snapshot
 from cmudrive.sim.world import World
@@ -180,6 +180,17 @@ class Scenario:
 
     def error(self, problem: str) -> ScenarioError:
         return ScenarioError(self.ctx.route_id, self.spec.name, problem)
+
+    def fwd(self, start: LanePoint, distance: float, what: str) -> LanePoint:
+        """fwd(distance) that refuses to stop short at a junction."""
+        stop = walk(self.map, start, distance, through_junctions=False, prefer=self.route_lanes)
+        through = walk(self.map, start, distance, through_junctions=True, prefer=self.route_lanes)
+        if stop != through:
+            raise self.error(
+                f"no place for the {what}: a junction lies less than {distance:g} m downstream of lane "
+                f"{self.map.lane_ids[start.lane]} at s={start.s:.1f} (the layout needs junction-free road)"
+            )
+        return stop
 
     def spawn(
         self, suffix: str, type_name: str, xy: np.ndarray, yaw: float, speed: float = 0.0, prop: bool = False

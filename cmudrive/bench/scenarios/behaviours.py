@@ -92,3 +92,23 @@ class PathMotion:
     @property
     def current_speed(self) -> float:
         return 0.0 if self.done else self.speed
+
+
+def lane_change_path(
+    m: RoadMap,
+    start: LanePoint,
+    from_offset: float,
+    change: float,
+    after: float,
+    prefer: frozenset[int] = frozenset(),
+) -> np.ndarray:
+    """(n, 2) a lane change onto the lane of ``start``: it begins ``from_offset`` m beside that lane (+
+    left), reaches the centre after ``change`` m (a smoothstep in the lateral offset) and follows the
+    lane ``after`` m more. Points every PATH_STEP m; the lane walk goes through junctions."""
+    total = change + after
+    n = max(int(np.ceil(total / PATH_STEP)), 1) + 1
+    along = np.minimum(np.arange(n) * PATH_STEP, total)
+    u = np.clip(along / max(change, 1e-9), 0.0, 1.0)
+    offset = from_offset * (1.0 - u * u * (3.0 - 2.0 * u))
+    points = [walk(m, start, float(a), through_junctions=True, prefer=prefer) for a in along]
+    return np.array([point_xy(m, p, float(d)) for p, d in zip(points, offset, strict=True)])

@@ -21,6 +21,7 @@ from cmudrive.bench.scenarios.crossings import (
     VehicleTurningRoute,
     VehicleTurningRoutePedestrian,
 )
+from cmudrive.bench.scenarios.cutins import ParkingCutIn, StaticCutIn
 from cmudrive.bench.scenarios.obstacles import (
     Accident,
     ConstructionObstacle,
@@ -43,6 +44,8 @@ REGISTRY: dict[str, type[Scenario]] = {
         PedestrianCrossing,
         VehicleTurningRoute,
         VehicleTurningRoutePedestrian,
+        ParkingCutIn,
+        StaticCutIn,
     )
 }
 

@@ -44,7 +44,6 @@ from cmudrive.bench.scenarios.placement import (
     point_xy,
     roadside,
     side_sign,
-    walk,
     width,
 )
 from cmudrive.maps.model import NO_INDEX
@@ -80,17 +79,6 @@ class LaneObstacle(Scenario):
         raise NotImplementedError
 
     # ------------------------------------------------------------------ placement
-    def fwd(self, start: LanePoint, distance: float, what: str) -> LanePoint:
-        """fwd(distance) that refuses to stop short at a junction."""
-        stop = walk(self.map, start, distance, through_junctions=False, prefer=self.route_lanes)
-        through = walk(self.map, start, distance, through_junctions=True, prefer=self.route_lanes)
-        if stop != through:
-            raise self.error(
-                f"no place for the {what}: a junction lies less than {distance:g} m downstream of lane "
-                f"{self.map.lane_ids[start.lane]} at s={start.s:.1f} (the layout needs junction-free road)"
-            )
-        return stop
-
     @property
     def direction(self) -> str:
         return str(self.p.get("direction", "right"))
