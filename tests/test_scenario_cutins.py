@@ -91,3 +91,73 @@ def _check_cut_in(m, lane, log, name, s_point, tta, distance, cruise) -> None:  
     assert s[merged] - s_cav[merged] > 4.89  # ahead of CAV 0 (more than a car length between centres)
     assert tr[present[merged:-1], 3] == pytest.approx(cruise)
     assert present[-1] < log.num_ticks - 1  # removed when its drive ends
+
+
+@pytest.mark.parametrize(
+    ("town", "approach", "exit_lane", "ramp", "s_start", "s_car", "t_s", "s_end"),
+    [
+        (
+            "highway",
+            "EB_gore1-EB_merge1_0",
+            "EB_merge1-EB_gore2_1",
+            "S_entry1-EB_merge1_0",
+            450.0,
+            341.0,
+            620.0,
+            250.0,
+        ),
+        ("Town06", "-42_3", "-43_3", "75_2", 20, 22, 81, 150),
+    ],
+)
+def test_highway_cut_in_times_its_merge_and_cuts_into_the_cav_lane(
+    town: str,
+    approach: str,
+    exit_lane: str,
+    ramp: str,
+    s_start: float,
+    s_car: float,
+    t_s: float,
+    s_end: float,
+    tmp_path: Path,
+) -> None:
+    """The ramp car (placed at activation) adapts its speed to be 10 m past its junction exit when CAV 0
+    is at its own exit; 5 m short of that it changes into CAV 0's lane at 80 % of CAV 0's speed (0.3 s +
+    2 s + 3 s of travel), entering the lane ahead of CAV 0, and is removed at the end of its manoeuvre."""
+    from cmudrive.maps.coords import map_to_carla
+    from tests.scenario_helpers import path_cav
+
+    m = load_map(town)
+    a, b, r = m.lane(approach), m.lane(exit_lane), m.lane(ramp)
+    xy = np.array(
+        [
+            m.index.frenet_to_xy(np.array([a]), np.array([s_start]))[0],
+            m.index.frenet_to_xy(np.array([a]), np.array([m.lane_length[a] - 3.0]))[0],
+            m.index.frenet_to_xy(np.array([b]), np.array([s_end]))[0],
+        ]
+    )
+    car = map_to_carla(m.index.frenet_to_xy(np.array([r]), np.array([s_car])))[0]
+    where = {"x": str(car[0]), "y": str(car[1]), "z": "0"}
+    sc = scenario("HighwayCutIn", trigger(m, approach, t_s), other_actor_location=where)
+    spec = RouteSpec(f"highway_cut_in_{town}", town, "ClearNoon", 0, (path_cav(m, 0, xy),), (sc,))
+    route = spec.dense_routes(m)[0]
+    result, log = run(spec, tmp_path)
+    assert result.scenario_simulated is True
+    tr, cav = track(log, "S1:car"), cav_track(log, 0)
+    present = np.flatnonzero(~np.isnan(tr[:, 0]))
+    s_cav_a, _ = frenet(m, approach, cav[present[0], :2])
+    assert t_s - 2.5 < s_cav_a[0] < t_s + 1.0  # placed at activation
+    # the lane change: from the tick its speed stays constant to the end
+    v = tr[present, 3]
+    switch = present[int(np.flatnonzero(np.abs(v - v[-1]) > 1e-3)[-1]) + 1]
+    k = int(np.argmin(np.linalg.norm(route.xy - cav[switch, :2], axis=1)))
+    exit_k = int(np.flatnonzero(route.in_junction)[-1]) + 1
+    assert route.distance[k] - route.distance[exit_k] == pytest.approx(0.0, abs=6.0)  # CAV 0 at its exit
+    s_sw, _ = frenet(m, exit_lane, tr[switch, :2])
+    assert 4.0 < s_sw[0] < 10.5  # the car 5-10 m past its own exit
+    assert tr[switch, 3] == pytest.approx(0.8 * cav[switch - 1, 3], abs=0.3)
+    s, d = frenet(m, exit_lane, tr[present, :2])
+    s_c, _ = frenet(m, exit_lane, cav[present, :2])
+    w = float(m.lane_width[b])
+    enter = int(np.flatnonzero(np.abs(d) < 0.5 * w)[0])
+    assert s[enter] > s_c[enter]  # its centre enters CAV 0's lane ahead of CAV 0's centre
+    assert np.abs(d[-1]) < 0.05 and present[-1] < log.num_ticks - 1  # on the lane centre, then removed

@@ -171,11 +171,11 @@ class Scenario:
             raise TypeError(f"parameter {name!r} of {self.type_name} is not a number: {value!r}")
         return value
 
-    def span(self, name: str) -> tuple[float, float]:
-        """A range parameter's (from, to)."""
+    def span(self, name: str) -> tuple[float, ...]:
+        """A range parameter's (from, to), or a location parameter's CARLA-frame (x, y, z) [m]."""
         value = self.p[name]
         if not isinstance(value, tuple):
-            raise TypeError(f"parameter {name!r} of {self.type_name} is not a range: {value!r}")
+            raise TypeError(f"parameter {name!r} of {self.type_name} is not a range or location: {value!r}")
         return value
 
     def error(self, problem: str) -> ScenarioError:

@@ -31,9 +31,10 @@ from typing import ClassVar
 import numpy as np
 
 from cmudrive.bench.scenarios.base import RouteProgress, Scenario
-from cmudrive.bench.scenarios.behaviours import PathMotion, lane_change_path, time_to_arrival
+from cmudrive.bench.scenarios.behaviours import PathMotion, lane_change_path, lane_path, time_to_arrival
 from cmudrive.bench.scenarios.params import DIRECTION, KMH, Param
-from cmudrive.bench.scenarios.placement import heading, neighbour, point_xy, side_sign, walk
+from cmudrive.bench.scenarios.placement import LanePoint, heading, neighbour, point_xy, side_sign, walk
+from cmudrive.maps.coords import carla_to_map
 from cmudrive.maps.model import NO_INDEX, LaneKind
 from cmudrive.sim.actor_types import ACTOR_TYPES
 from cmudrive.sim.snapshot import Snapshot
@@ -180,3 +181,104 @@ class ParkingCutIn(CutIn):
                 f"its {direction}"
             )
         return int(same[0])
+
+
+class HighwayCutIn(Scenario):
+    """#13: a car from an on-ramp times its merge to meet the CAV and cuts into its lane."""
+
+    type_name = "HighwayCutIn"
+    uses_timeout = False
+    params = (
+        Param("other_actor_location", "m", None, is_location=True, required=True),
+        Param("end_location", "m", None, is_location=True),  # read by the reference, unused
+    )
+    SNAP = 5.0  # [m] other_actor_location must lie this close to a driving lane
+    SYNC_PAST_EXIT = 10.0  # [m] the car aims at its junction exit + this when the CAV is at its exit
+    SWITCH = 5.0  # [m] it starts the lane change this close to that point
+    SAME, LATERAL, AFTER = 0.3, 2.0, 3.0  # [s] of the lane change, turned into metres at its speed
+    SPEED_SHARE = 0.8  # lane-change speed / the CAV's speed
+    MAX_SPEED = 40.0  # [m/s] cap of the timing speed
+
+    def place(self) -> None:
+        m = self.map
+        x, y, _ = self.span("other_actor_location")
+        xy = carla_to_map(np.array([[x, y]]))[0]
+        proj = m.index.nearest_lane(xy[None], max_distance=self.SNAP)
+        if proj.lane[0] < 0:
+            raise self.error(
+                f"parameter 'other_actor_location': no driving lane within {self.SNAP:g} m of it"
+            )
+        self.start = LanePoint(int(proj.lane[0]), float(proj.s[0]))
+        route = self.ctx.routes[0]
+        inside = np.flatnonzero(route.in_junction[self.trigger_index :]) + self.trigger_index
+        if len(inside) == 0:
+            raise self.error(
+                "no place for the scenario: CAV 0's route meets no junction (the on-ramp) after T"
+            )
+        after = np.flatnonzero(~route.in_junction[inside[0] :]) + inside[0]
+        self.ego_exit = float(route.distance[after[0] if len(after) else len(route) - 1])
+        to_exit = self._distance_to_exit(self.start)
+        self.sync = to_exit + self.SYNC_PAST_EXIT
+        self.approach = PathMotion(lane_path(m, self.start, self.sync), 0.0)
+        merge_at = walk(m, self.start, self.sync, through_junctions=True)
+        if neighbour(m, merge_at.lane, "left") == NO_INDEX:
+            raise self.error(
+                f"no place for the cut-in: lane {m.lane_ids[merge_at.lane]} {self.SYNC_PAST_EXIT:g} m past "
+                "the ramp's junction has no driving lane on its left"
+            )
+        self.cut: PathMotion | None = None
+
+    def _distance_to_exit(self, start: LanePoint) -> float:
+        """[m] along the car's lanes (first branch) to the end of the first junction it crosses."""
+        m, lane, s, travelled, seen = self.map, start.lane, start.s, 0.0, False
+        for _ in range(1000):
+            travelled += float(m.lane_length[lane]) - s
+            succ = m.successors(lane)
+            if len(succ) == 0:
+                break
+            seen |= bool(m.lane_internal[lane])
+            lane, s = int(succ[0]), 0.0
+            if seen and not m.lane_internal[lane]:
+                return travelled
+        raise self.error("parameter 'other_actor_location': the car's lane leads through no junction")
+
+    def on_activate(self, snap: Snapshot) -> None:
+        xy, yaw = self.approach.pose()
+        self.spawn("car", "car", xy, yaw)
+        background = self.world.background
+        if background is not None:
+            lanes = self.map.successors(self.start.lane)
+            if len(lanes) and self.map.lane_junction[lanes[0]] >= 0:
+                background.clear_junction(int(self.map.lane_junction[lanes[0]]))
+
+    def on_update(self, snap: Snapshot, progress: RouteProgress) -> bool:
+        route, dt = self.ctx.routes[0], self.world.dt
+        ego_speed = float(progress.speed[0])
+        if self.cut is None:
+            remaining = self.sync - self.approach.s
+            ego_left = self.ego_exit - float(route.distance[progress.index[0]])
+            time_left = ego_left / ego_speed if ego_left > 0.0 and ego_speed > 0.1 else math.inf
+            self.approach.speed = float(np.clip(remaining / time_left, 0.0, self.MAX_SPEED))
+            if ego_left <= 0.0:
+                self.approach.speed = self.MAX_SPEED
+            self.approach.advance(dt)
+            motion = self.approach
+            if remaining <= self.SWITCH:
+                self.cut = self._lane_change(self.SPEED_SHARE * max(ego_speed, 1.0))
+        else:
+            motion = self.cut
+            motion.advance(dt)
+        xy, yaw = motion.pose()
+        self.world.set_layer_pose(f"{self.spec.name}:car", xy[0], xy[1], yaw, motion.current_speed)
+        return self.cut is not None and self.cut.done
+
+    def _lane_change(self, v: float) -> PathMotion:
+        m = self.map
+        here = walk(m, self.start, self.approach.s, through_junctions=True)
+        same = walk(m, here, v * self.SAME, through_junctions=True)
+        target = neighbour(m, same.lane, "left")
+        s, _ = m.index.project(point_xy(m, same)[None], np.array([target]))
+        offset = -0.5 * float(m.lane_width[same.lane] + m.lane_width[target])
+        change = lane_change_path(m, LanePoint(target, float(s[0])), offset, v * self.LATERAL, v * self.AFTER)
+        path = np.concatenate([lane_path(m, here, max(v * self.SAME, 0.5))[:-1], change])
+        return PathMotion(path, v)

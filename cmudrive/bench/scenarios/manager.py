@@ -21,7 +21,7 @@ from cmudrive.bench.scenarios.crossings import (
     VehicleTurningRoute,
     VehicleTurningRoutePedestrian,
 )
-from cmudrive.bench.scenarios.cutins import ParkingCutIn, StaticCutIn
+from cmudrive.bench.scenarios.cutins import HighwayCutIn, ParkingCutIn, StaticCutIn
 from cmudrive.bench.scenarios.obstacles import (
     Accident,
     ConstructionObstacle,
@@ -44,6 +44,7 @@ REGISTRY: dict[str, type[Scenario]] = {
         PedestrianCrossing,
         VehicleTurningRoute,
         VehicleTurningRoutePedestrian,
+        HighwayCutIn,
         ParkingCutIn,
         StaticCutIn,
     )

@@ -33,23 +33,26 @@ class Param:
 
     name: str
     unit: str
-    default: float | str | tuple[float, float]
+    default: float | str | tuple[float, ...] | None
     lo: float = -math.inf
     hi: float = math.inf
     choices: tuple[str, ...] = ()
     is_range: bool = False  # <name from="a" to="b"/>: a (from, to) pair, both in [lo, hi], from <= to
+    is_location: bool = False  # <name x="..." y="..." z="..."/>: a CARLA-frame point [m], (x, y, z)
+    required: bool = False  # no default: the route file must give it
 
 
 DIRECTION = Param("direction", "", "right", choices=("right", "left"))
 
 
-def parse_params(
-    spec: ScenarioSpec, route_id: str, params: tuple[Param, ...]
-) -> dict[str, float | str | tuple[float, float]]:
+Value = float | str | tuple[float, ...] | None
+
+
+def parse_params(spec: ScenarioSpec, route_id: str, params: tuple[Param, ...]) -> dict[str, Value]:
     """The scenario's parameter values (defaults filled in); ScenarioError for an unknown parameter, a
     value that is not a number, out of range, or not one of the choices."""
     known = {p.name: p for p in params}
-    out: dict[str, float | str | tuple[float, float]] = {p.name: p.default for p in params}
+    out: dict[str, Value] = {p.name: p.default for p in params}
     for name, raw in spec.params.items():
         if name not in known:
             allowed = ", ".join(sorted(known)) or "none"
@@ -57,14 +60,23 @@ def parse_params(
                 route_id, spec.name, f"unknown parameter {name!r} for type {spec.type} (allowed: {allowed})"
             )
         out[name] = _value(known[name], raw, route_id, spec.name)
+    for p in params:
+        if p.required and p.name not in spec.params:
+            raise ScenarioError(
+                route_id, spec.name, f"missing required parameter {p.name!r} for type {spec.type}"
+            )
     return out
 
 
-def _value(p: Param, raw: ParamValue, route_id: str, scenario: str) -> float | str | tuple[float, float]:
+def _value(p: Param, raw: ParamValue, route_id: str, scenario: str) -> Value:
     def fail(why: str) -> ScenarioError:
         unit = f" [{p.unit}]" if p.unit else ""
         return ScenarioError(route_id, scenario, f"parameter {p.name!r}{unit}: {why}")
 
+    if p.is_location:
+        if not isinstance(raw, dict) or not {"x", "y"} <= set(raw) <= {"x", "y", "z", "yaw", "pitch", "roll"}:
+            raise fail(f"expected <{p.name} x=... y=... z=.../>, got {raw!r}")
+        return tuple(_number(raw.get(k, "0"), fail) for k in ("x", "y", "z"))
     if p.is_range:
         if not isinstance(raw, dict) or set(raw) != {"from", "to"}:
             raise fail(f"expected <{p.name} from=... to=.../>, got {raw!r}")
