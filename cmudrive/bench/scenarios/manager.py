@@ -22,6 +22,7 @@ from cmudrive.bench.scenarios.crossings import (
     VehicleTurningRoutePedestrian,
 )
 from cmudrive.bench.scenarios.cutins import HighwayCutIn, ParkingCutIn, StaticCutIn
+from cmudrive.bench.scenarios.emergency import YieldToEmergencyVehicle
 from cmudrive.bench.scenarios.obstacles import (
     Accident,
     ConstructionObstacle,
@@ -47,6 +48,7 @@ REGISTRY: dict[str, type[Scenario]] = {
         HighwayCutIn,
         ParkingCutIn,
         StaticCutIn,
+        YieldToEmergencyVehicle,
     )
 }
 
