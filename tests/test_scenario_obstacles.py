@@ -13,6 +13,7 @@ import pytest
 
 from cmudrive.bench import EvalConfig, RouteSpec
 from cmudrive.bench.records import RouteResult
+from cmudrive.bench.routes import ScenarioSpec
 from cmudrive.maps import RoadMap, load_map
 from cmudrive.sim.background import BackgroundConfig
 from tests.scenario_helpers import cav_track, frenet, lane_cav, run, scenario, track, trigger
@@ -114,3 +115,83 @@ def test_accident_with_background_traffic_on_a_carla_town(tmp_path: Path) -> Non
     result, log = run(spec, tmp_path, config=config)
     assert result.scenario_simulated is True
     assert not np.isnan(track(log, "S1:police")[0, 0])
+
+
+TWO_WAYS = {"downtown": "J0_0-J0_1_2", "Town01": "-6_2"}  # one lane each way
+
+
+@pytest.mark.parametrize("town", ["downtown", "Town01"])
+@pytest.mark.parametrize(
+    "kind",
+    ["AccidentTwoWays", "ParkedObstacleTwoWays", "ConstructionObstacleTwoWays", "HazardAtSideLaneTwoWays"],
+)
+def test_two_ways_variants_open_the_oncoming_lane(
+    kind: str, town: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Same obstacles as the one-way types, on a road with one lane each way; 5 s after a CAV came close,
+    the wrong-direction check of CAV 0 is switched off (on again at the end) and, except for the cyclists,
+    an OppositeFlow drives the oncoming lane against CAV 0 at the speed limit with gaps of at least
+    ``frequency.from`` metres."""
+    from cmudrive.bench.criteria import RouteCriteria
+
+    calls: list[tuple[int, bool, float]] = []
+    original = RouteCriteria.set_wrong_direction_check
+
+    def spy(self: RouteCriteria, cav: int, enabled: bool) -> None:
+        calls.append((cav, enabled, self._time))
+        original(self, cav, enabled)
+
+    monkeypatch.setattr(RouteCriteria, "set_wrong_direction_check", spy)
+    m = load_map(town)
+    lane = TWO_WAYS[town]
+    i = m.lane(lane)
+    spec = RouteSpec(
+        f"{kind}_{town}",
+        town,
+        "ClearNoon",
+        0,
+        (lane_cav(m, 0, lane, 5.0, min(200.0, m.lane_length[i] - 3.0)),),
+        (ScenarioSpec("S1", kind, trigger(m, lane, 20.0), {"distance": "40", "frequency": FREQ[kind]}),),
+    )
+    result, log = run(spec, tmp_path)
+    assert result.scenario_simulated is True
+    first = layout(kind.removesuffix("TwoWays"), float(m.lane_width[i]))[0]
+    tr = track(log, f"S1:{first[0]}")
+    present = np.flatnonzero(~np.isnan(tr[:, 0]))
+    s, d = frenet(m, lane, tr[present[0], :2])
+    assert s[0] == pytest.approx(20.0 + first[1], abs=0.6) and d[0] == pytest.approx(first[2], abs=0.15)
+    assert [(c, e) for c, e, _ in calls] == [(0, False), (0, True)]
+    off = calls[0][2]
+    cars = sorted(
+        {a for a in log.arrays["actor_id"].tolist() if a.startswith("S1:opp")}, key=lambda a: int(a[7:])
+    )
+    if kind == "HazardAtSideLaneTwoWays":
+        assert cars == []
+        return
+    assert cars, "no oncoming flow"
+    opposite = int(m.lane_opposite[i])
+    starts = []
+    for car in cars:
+        c = track(log, car)
+        rows = np.flatnonzero(~np.isnan(c[:, 0]))
+        assert rows[0] * 0.05 >= off - 0.1  # the flow starts with the wrong-direction switch
+        _, dc = m.index.project(c[rows, :2], np.full(len(rows), opposite))
+        assert np.abs(dc).max() < 0.3  # on the oncoming lane
+        heading_gap = np.angle(
+            np.exp(1j * (c[rows[-1], 2] - m.index.heading_at(np.array([i]), np.array([50.0]))[0]))
+        )
+        assert abs(heading_gap) > 2.5  # against CAV 0's direction
+        assert np.nanmax(c[:, 3]) <= m.lane_speed[i] + 0.1
+        starts.append(rows[0])
+    if len(cars) > 1:  # the next car leaves once the last one drove a gap >= frequency.from
+        first_car = track(log, cars[0])
+        driven = np.linalg.norm(first_car[starts[1], :2] - first_car[starts[0], :2])
+        assert driven >= 20.0 - 1.0
+
+
+FREQ = {
+    "AccidentTwoWays": {"from": "20", "to": "40"},
+    "ParkedObstacleTwoWays": {"from": "20", "to": "40"},
+    "ConstructionObstacleTwoWays": {"from": "20", "to": "40"},
+    "HazardAtSideLaneTwoWays": "100",
+}

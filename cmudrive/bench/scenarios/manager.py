@@ -25,9 +25,13 @@ from cmudrive.bench.scenarios.cutins import HighwayCutIn, ParkingCutIn, StaticCu
 from cmudrive.bench.scenarios.emergency import YieldToEmergencyVehicle
 from cmudrive.bench.scenarios.obstacles import (
     Accident,
+    AccidentTwoWays,
     ConstructionObstacle,
+    ConstructionObstacleTwoWays,
     HazardAtSideLane,
+    HazardAtSideLaneTwoWays,
     ParkedObstacle,
+    ParkedObstacleTwoWays,
 )
 from cmudrive.maps import RoadMap, Route
 from cmudrive.sim.snapshot import Snapshot
@@ -37,9 +41,13 @@ REGISTRY: dict[str, type[Scenario]] = {
     cls.type_name: cls
     for cls in (
         Accident,
+        AccidentTwoWays,
         ConstructionObstacle,
+        ConstructionObstacleTwoWays,
         HazardAtSideLane,
+        HazardAtSideLaneTwoWays,
         ParkedObstacle,
+        ParkedObstacleTwoWays,
         DynamicObjectCrossing,
         ParkingCrossingPedestrian,
         PedestrianCrossing,

@@ -36,6 +36,7 @@ import numpy as np
 
 from cmudrive.bench.scenarios.base import RouteProgress, Scenario
 from cmudrive.bench.scenarios.behaviours import PathMotion, ahead_of, lane_path, within
+from cmudrive.bench.scenarios.flows import VehicleFlow
 from cmudrive.bench.scenarios.params import DIRECTION, KMH, Param
 from cmudrive.bench.scenarios.placement import (
     LanePoint,
@@ -44,6 +45,7 @@ from cmudrive.bench.scenarios.placement import (
     point_xy,
     roadside,
     side_sign,
+    walk,
     width,
 )
 from cmudrive.maps.model import NO_INDEX
@@ -74,6 +76,8 @@ class LaneObstacle(Scenario):
     leave_space_extra: ClassVar[float] = 36.0  # [m] LeaveSpace(distance + this) at activation
     hidden: ClassVar[bool] = False  # True: obstacles appear at activation (else at instantiation)
     warning_sign: ClassVar[bool] = True
+    two_ways: ClassVar[bool] = False  # pass through the oncoming lane (the *TwoWays variants)
+    opposite_flow: ClassVar[bool] = True  # TwoWays: an OppositeFlow runs on the oncoming lane after the idle
 
     def layout(self) -> list[Item]:
         raise NotImplementedError
@@ -85,7 +89,13 @@ class LaneObstacle(Scenario):
 
     def place(self) -> None:
         pass_side = "left" if self.direction == "right" else "right"
-        if neighbour(self.map, self.t_wp.lane, pass_side) == NO_INDEX:
+        if self.two_ways:
+            if self.map.lane_opposite[self.t_wp.lane] == NO_INDEX:
+                raise self.error(
+                    f"no place for the scenario: lane {self.map.lane_ids[self.t_wp.lane]} at the trigger "
+                    "point has no oncoming lane beside it to pass the obstacle through"
+                )
+        elif neighbour(self.map, self.t_wp.lane, pass_side) == NO_INDEX:
             raise self.error(
                 f"no place for the scenario: lane {self.map.lane_ids[self.t_wp.lane]} at the trigger point "
                 f"has no same-direction driving lane on its {pass_side} to pass the obstacle through"
@@ -101,6 +111,7 @@ class LaneObstacle(Scenario):
         self.sign_xy, _ = roadside(self.map, self.t_wp, self.direction, SIGN_PUSH * w)
         self.close_at = np.nan  # [s] when a CAV first came within close_distance
         self.capped = False
+        self.flow: VehicleFlow | None = None
 
     def shift(self, fraction: float) -> float:
         """Lateral offset [m] of ``fraction`` lane widths toward ``direction``."""
@@ -133,8 +144,9 @@ class LaneObstacle(Scenario):
             self.close_at = self.time
         if not self.capped and self.time - self.close_at >= IDLE:
             self.capped = True
-            if self.world.background is not None:
-                self.world.background.max_speed(self.num("speed") * KMH)
+            self.after_idle()
+        if self.flow is not None:
+            self.flow.update(snap)
         self.update_passed(progress)
         return bool(np.all(self.passed[self.running_charged()]))
 
@@ -144,16 +156,56 @@ class LaneObstacle(Scenario):
     def update_passed(self, progress: RouteProgress) -> None:
         self.passed |= progress.present & ahead_of(progress.xy, self.end_xy, self.end_heading)
 
+    def after_idle(self) -> None:
+        """One-way: cap background traffic (MaxSpeed). TwoWays: WrongDirOff for the charged CAVs, OppOff,
+        and an OppositeFlow on the oncoming lane beside the last obstacle."""
+        background = self.world.background
+        if not self.two_ways:
+            if background is not None:
+                background.max_speed(self.num("speed") * KMH)
+            return
+        for i in np.flatnonzero(self.charged).tolist():
+            self.ctx.criteria.set_wrong_direction_check(i, False)
+        if not self.opposite_flow:
+            return
+        if background is not None:
+            background.opposite_traffic(False)
+        self.flow = self.oncoming_flow()
+
+    def oncoming_flow(self) -> VehicleFlow:
+        """OppositeFlow: at the ego lane's speed limit v, from 1.5 v[km/h] + 30 m upstream to as far
+        downstream of the oncoming-lane point beside the last obstacle (clipped at junctions)."""
+        m, last = self.map, self.items[-1].at
+        opposite = int(m.lane_opposite[last.lane])
+        s, _ = m.index.project(point_xy(m, last)[None], np.array([opposite]))
+        ref = LanePoint(opposite, float(s[0]))
+        v = float(m.lane_speed[self.t_wp.lane])  # [m/s]
+        half = 1.5 * v * 3.6 + 30.0  # [m] upstream mixes units: 1.5 x (speed in km/h) metres
+        source = walk(m, ref, -half, through_junctions=False)
+        sink = walk(m, ref, half, through_junctions=False)
+        rng = self.ctx.rng
+        return VehicleFlow(
+            f"{self.spec.name}:opp", self.world, m, source, sink, self.span("frequency"), v, rng, False
+        )
+
     def on_end(self) -> None:
-        if self.capped and self.world.background is not None:
-            self.world.background.max_speed(None)
+        background = self.world.background
+        if self.capped and not self.two_ways and background is not None:
+            background.max_speed(None)
+        if self.capped and self.two_ways:
+            for i in np.flatnonzero(self.charged).tolist():
+                self.ctx.criteria.set_wrong_direction_check(i, True)
+            if self.flow is not None:
+                self.flow.stop()
+                if background is not None:
+                    background.opposite_traffic(True)
 
 
 class Accident(LaneObstacle):
     """#1: a police car and two crashed cars in the ego lane."""
 
     type_name = "Accident"
-    params = (
+    params: ClassVar[tuple[Param, ...]] = (
         Param("distance", "m", 120.0, lo=5.0, hi=400.0),
         DIRECTION,
         Param("speed", "km/h", 60.0, lo=0.0, hi=130.0),
@@ -180,7 +232,7 @@ class ParkedObstacle(LaneObstacle):
 
     type_name = "ParkedObstacle"
     leave_space_extra = 20.0
-    params = Accident.params
+    params: ClassVar[tuple[Param, ...]] = Accident.params
 
     def layout(self) -> list[Item]:
         at = self.fwd(self.t_wp, self.num("distance"), "parked car")
@@ -194,7 +246,7 @@ class ConstructionObstacle(LaneObstacle):
     close_distance = 30.0
     leave_space_extra = 10.0  # the reference does not LeaveSpace here; it removes the ego lane instead
     hidden = True
-    params = (
+    params: ClassVar[tuple[Param, ...]] = (
         Param("distance", "m", 100.0, lo=10.0, hi=400.0),
         DIRECTION,
         Param("speed", "km/h", 60.0, lo=0.0, hi=130.0),
@@ -233,7 +285,7 @@ class HazardAtSideLane(LaneObstacle):
     type_name = "HazardAtSideLane"
     leave_space_extra = 29.0
     warning_sign = False
-    params = (
+    params: ClassVar[tuple[Param, ...]] = (
         Param("distance", "m", 100.0, lo=5.0, hi=400.0),
         Param("speed", "km/h", 60.0, lo=0.0, hi=130.0),
         Param("bicycle_speed", "km/h", 10.0, lo=0.0, hi=40.0),
@@ -288,3 +340,44 @@ class HazardAtSideLane(LaneObstacle):
         newly = np.isnan(self.ahead_at) & progress.present & ahead_of(progress.xy, front, yaw)
         self.ahead_at[newly] = driven[newly]
         self.passed |= driven - self.ahead_at >= END_MARGIN
+
+
+FREQUENCY = Param("frequency", "m", (20.0, 100.0), lo=5.0, hi=1000.0, is_range=True)
+
+
+class AccidentTwoWays(Accident):
+    """#2: the accident on a two-way road; the CAV passes through the oncoming lane in a gap of an
+    OppositeFlow (``frequency`` m gaps); no speed cap."""
+
+    type_name = "AccidentTwoWays"
+    two_ways = True
+    params: ClassVar[tuple[Param, ...]] = (*Accident.params, FREQUENCY)
+
+
+class ParkedObstacleTwoWays(ParkedObstacle):
+    """#26: the parked car on a two-way road, passed through the oncoming lane."""
+
+    type_name = "ParkedObstacleTwoWays"
+    two_ways = True
+    params: ClassVar[tuple[Param, ...]] = (*ParkedObstacle.params, FREQUENCY)
+
+
+class ConstructionObstacleTwoWays(ConstructionObstacle):
+    """#5: the road works on a two-way road, passed through the oncoming lane."""
+
+    type_name = "ConstructionObstacleTwoWays"
+    two_ways = True
+    params: ClassVar[tuple[Param, ...]] = (*ConstructionObstacle.params, FREQUENCY)
+
+
+class HazardAtSideLaneTwoWays(HazardAtSideLane):
+    """#12: the cyclists on a two-way road; after the idle only the wrong-direction check is switched off
+    (the reference re-spaces background oncoming traffic with ``frequency``; ours is left as it is)."""
+
+    type_name = "HazardAtSideLaneTwoWays"
+    two_ways = True
+    opposite_flow = False
+    params: ClassVar[tuple[Param, ...]] = (
+        *HazardAtSideLane.params,
+        Param("frequency", "m", 100.0, lo=5.0, hi=1000.0),
+    )
