@@ -37,6 +37,7 @@ from cmudrive.sim.snapshot import Role, Snapshot
 from cmudrive.sim.world import World
 
 PROGRESS_WINDOW = 30  # [route points] searched ahead of a CAV's last matched point per tick
+JUNCTION_SEARCH = 150.0  # [m] along CAV 0's route past T where the junction of a junction type must lie
 
 
 @dataclass(frozen=True)
@@ -191,6 +192,28 @@ class Scenario:
                 f"{self.map.lane_ids[start.lane]} at s={start.s:.1f} (the layout needs junction-free road)"
             )
         return stop
+
+    def junction_exit(self) -> tuple[int, int, float]:
+        """CAV 0's route indices of the last point before and the first point after its first junction past
+        T, and the turn angle [rad] (+ left) between them."""
+        route = self.ctx.routes[0]
+        k0 = self.trigger_index
+        inside = np.flatnonzero(route.in_junction[k0:]) + k0
+        if len(inside) == 0 or route.distance[inside[0]] - route.distance[k0] > JUNCTION_SEARCH:
+            raise self.error(
+                f"no place for the scenario: CAV 0's route has no junction within {JUNCTION_SEARCH:g} m of T"
+            )
+        first = int(inside[0])
+        after = np.flatnonzero(~route.in_junction[first:]) + first
+        if len(after) == 0:
+            raise self.error("no place for the scenario: CAV 0's route ends inside the junction")
+        last = int(after[0])
+        turn = (route.heading[last] - route.heading[first - 1] + math.pi) % (2 * math.pi) - math.pi
+        return first - 1, last, float(turn)
+
+    def route_point(self, k: int) -> LanePoint:
+        route = self.ctx.routes[0]
+        return LanePoint(int(route.lane[k]), float(route.s[k]))
 
     def spawn(
         self, suffix: str, type_name: str, xy: np.ndarray, yaw: float, speed: float = 0.0, prop: bool = False

@@ -61,7 +61,6 @@ from cmudrive.sim.actor_types import ACTOR_TYPES
 from cmudrive.sim.snapshot import Snapshot
 
 AFTER_CROSSING = 40.0  # [m] the CAVs drive this far after the crossing before the scenario ends
-JUNCTION_SEARCH = 150.0  # [m] along CAV 0's route past T where the junction of a junction type must lie
 BLOCKER_MODELS = {  # the route file's blueprint name -> our prop type
     "static.prop.vendingmachine": "vending_machine",
     "static.prop.advertisement": "advertisement",
@@ -162,28 +161,6 @@ class Crossing(Scenario):
                 f"no place for the {what}: {distance:g} m downstream of the trigger is inside a junction"
             )
         return lp
-
-    def junction_exit(self) -> tuple[int, int, float]:
-        """CAV 0's route indices of the last point before and the first point after its first junction past
-        T, and the turn angle [rad] (+ left) between them."""
-        route = self.ctx.routes[0]
-        k0 = self.trigger_index
-        inside = np.flatnonzero(route.in_junction[k0:]) + k0
-        if len(inside) == 0 or route.distance[inside[0]] - route.distance[k0] > JUNCTION_SEARCH:
-            raise self.error(
-                f"no place for the scenario: CAV 0's route has no junction within {JUNCTION_SEARCH:g} m of T"
-            )
-        first = int(inside[0])
-        after = np.flatnonzero(~route.in_junction[first:]) + first
-        if len(after) == 0:
-            raise self.error("no place for the scenario: CAV 0's route ends inside the junction")
-        last = int(after[0])
-        turn = (route.heading[last] - route.heading[first - 1] + math.pi) % (2 * math.pi) - math.pi
-        return first - 1, last, float(turn)
-
-    def route_point(self, k: int) -> LanePoint:
-        route = self.ctx.routes[0]
-        return LanePoint(int(route.lane[k]), float(route.s[k]))
 
     def far_side(self, lp: LanePoint) -> np.ndarray:
         """The roadside point across the whole road from the right side: the right side of the opposite

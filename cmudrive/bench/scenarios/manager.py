@@ -23,6 +23,15 @@ from cmudrive.bench.scenarios.crossings import (
 )
 from cmudrive.bench.scenarios.cutins import HighwayCutIn, ParkingCutIn, StaticCutIn
 from cmudrive.bench.scenarios.emergency import YieldToEmergencyVehicle
+from cmudrive.bench.scenarios.junctions import (
+    BlockedIntersection,
+    SequentialLaneChange,
+    T_Junction,
+    VanillaNonSignalizedTurn,
+    VanillaNonSignalizedTurnEncounterStopsign,
+    VanillaSignalizedTurnEncounterGreenLight,
+    VanillaSignalizedTurnEncounterRedLight,
+)
 from cmudrive.bench.scenarios.obstacles import (
     Accident,
     AccidentTwoWays,
@@ -57,6 +66,13 @@ REGISTRY: dict[str, type[Scenario]] = {
         ParkingCutIn,
         StaticCutIn,
         YieldToEmergencyVehicle,
+        BlockedIntersection,
+        SequentialLaneChange,
+        T_Junction,
+        VanillaNonSignalizedTurn,
+        VanillaNonSignalizedTurnEncounterStopsign,
+        VanillaSignalizedTurnEncounterGreenLight,
+        VanillaSignalizedTurnEncounterRedLight,
     )
 }
 
