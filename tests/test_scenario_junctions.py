@@ -6,15 +6,18 @@ from __future__ import annotations
 
 from dataclasses import replace
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 import pytest
 
+from cmudrive.agents import Observations, PidAgent
 from cmudrive.bench import EvalConfig, RouteSpec
 from cmudrive.bench.criteria import CriteriaConfig
 from cmudrive.bench.scenarios import ScenarioConfig
 from cmudrive.bench.scenarios.base import Scenario
 from cmudrive.maps import RoadMap, load_map
+from cmudrive.sim.dynamics import Controls
 from tests.scenario_helpers import (
     EMPTY,
     StopsAt,
@@ -173,3 +176,45 @@ def test_drive_counter_scenarios_suspend_blocked_and_time_out(tmp_path: Path) ->
     (t_out,) = [i.time for i in result.cavs[0].infractions["scenario_timeouts"]]
     blocked = result.cavs[0].infractions["vehicle_blocked"][0].time
     assert 10.5 < t_out < 16.0 and t_out + 5.0 <= blocked < t_out + 6.0
+
+
+class RecordsControls(PidAgent):
+    """The PID agent, keeping what it asked for (before any scenario changed it)."""
+
+    asked: ClassVar[list[tuple[float, float]]] = []
+
+    def run_step(self, obs: Observations) -> Controls:
+        c = super().run_step(obs)
+        RecordsControls.asked.append((float(c.steer[0]), float(c.throttle[0])))
+        return c
+
+
+def test_control_loss_adds_noise_near_the_three_patches(tmp_path: Path) -> None:
+    """Within 2 m of the patches 14, 48 and 74 m past T the CAV's steer and throttle get noise of mean
+    +-0.055 / +-0.03 (sign fixed per patch); elsewhere its controls are the agent's own."""
+    RecordsControls.asked.clear()
+    m = load_map("interurban")
+    lane = "R1a-R2a_0"
+    cavs = (lane_cav(m, 0, lane, 20.0, 230.0),)
+    spec = RouteSpec(
+        "loss", "interurban", "ClearNoon", 0, cavs, (scenario("ControlLoss", trigger(m, lane, 40.0)),)
+    )
+    result, log = run(spec, tmp_path, RecordsControls)
+    assert result.scenario_simulated is True
+    asked = np.array(RecordsControls.asked)  # (ticks, 2) steer, throttle
+    applied = np.array(
+        [[log.controls(k).steer[0], log.controls(k).throttle[0]] for k in range(log.num_ticks)]
+    )
+    n = min(len(asked), len(applied))
+    changed = np.flatnonzero(np.abs(applied[:n] - asked[:n]).max(axis=1) > 1e-6)
+    # the CAV position when the agent was asked: the log's previous tick
+    cav = cav_track(log, 0)
+    s_prev, _ = m.index.project(cav[changed - 1, :2], np.full(len(changed), m.lane(lane)))
+    patches = np.array([54.0, 88.0, 114.0])  # T at s = 40 m
+    assert np.abs(s_prev[:, None] - patches).min(axis=1).max() < 2.0 + 1.1  # only near a patch (+ a tick)
+    for p in patches:  # every patch is felt, with one sign of steer noise each
+        near = changed[np.abs(s_prev - p) < 3.1]
+        assert len(near) >= 2
+        noise = applied[near, 0] - asked[near, 0]
+        assert np.all(noise > 0) or np.all(noise < 0)
+        assert 0.02 < abs(noise.mean()) < 0.09

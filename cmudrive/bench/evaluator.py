@@ -286,6 +286,7 @@ class _Loop:
             rows, index = _active_cavs(snap, world)
             controls = self._agent_step(snap, tick, rows, index)
             self.scenarios.update(snap)  # scripted actors move before the world ticks
+            controls = self.scenarios.perturb(controls, index)  # ControlLoss noise on the CAVs' controls
             try:
                 snap = world.tick(controls)
             except ControlError as exc:

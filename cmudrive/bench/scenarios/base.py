@@ -33,6 +33,7 @@ from cmudrive.bench.routes import ScenarioSpec
 from cmudrive.bench.scenarios.params import Param, ScenarioError, parse_params
 from cmudrive.bench.scenarios.placement import LanePoint, walk
 from cmudrive.maps import RoadMap, Route
+from cmudrive.sim.dynamics import Controls
 from cmudrive.sim.snapshot import Role, Snapshot
 from cmudrive.sim.world import World
 
@@ -151,6 +152,11 @@ class Scenario:
 
     def on_end(self) -> None:
         """Clean-up beyond removing the spawned actors (BA commands back to normal, ...)."""
+
+    def perturb(self, controls: Controls, cav: np.ndarray, progress: RouteProgress) -> Controls:
+        """Change the controls (n,) of the CAVs ``cav`` (n,) before the world applies them (ControlLoss);
+        called every tick while the scenario is active."""
+        return controls
 
     # ------------------------------------------------------------------ shared tools
     @property

@@ -34,6 +34,7 @@ import numpy as np
 from cmudrive.bench.scenarios.base import RouteProgress, Scenario
 from cmudrive.bench.scenarios.behaviours import within
 from cmudrive.bench.scenarios.placement import heading, point_xy, walk
+from cmudrive.sim.dynamics import Controls
 from cmudrive.sim.snapshot import Snapshot
 
 AFTER_JUNCTION = 10.0  # [m] driven past the junction exit
@@ -180,3 +181,40 @@ class BlockedIntersection(Scenario):
         if math.isnan(self.close_at) and within(progress, self.xy, self.CLOSE):
             self.close_at = self.time
         return self.time - self.close_at >= self.IDLE
+
+
+class ControlLoss(RouteRule):
+    """#6: three patches on the ego lane 14, 48 and 74 m past T_wp; a CAV within 2 m of a patch gets noise
+    added to its own controls every tick: throttle + N(+-0.03, 0.01) in [0, 1], steer + N(+-0.055, 0.015)
+    in [-1, 1], the signs drawn once per patch. Ends once the charged CAVs drove 110 m from T (the third
+    patch + 36 m). The patches are cosmetic upstream (dirt decals); we place none."""
+
+    type_name = "ControlLoss"
+    counter = 110.0
+    needs_junction = False
+    PATCHES = (14.0, 48.0, 74.0)  # [m] past T_wp
+    RADIUS = 2.0  # [m]
+    THROTTLE, STEER = (0.03, 0.01), (0.055, 0.015)  # (|mean|, standard deviation)
+
+    def place(self) -> None:
+        super().place()
+        m = self.map
+        points = [
+            walk(m, self.t_wp, d, through_junctions=False, prefer=self.route_lanes) for d in self.PATCHES
+        ]
+        self.patches = np.array([point_xy(m, p) for p in points])  # (3, 2) [m]
+        signs = self.ctx.rng.choice([-1.0, 1.0], size=(len(self.PATCHES), 2))
+        self.means = signs * np.array([self.THROTTLE[0], self.STEER[0]])  # (3, 2) throttle, steer
+
+    def perturb(self, controls: Controls, cav: np.ndarray, progress: RouteProgress) -> Controls:
+        xy = progress.xy[cav]
+        gap = np.linalg.norm(xy[:, None, :] - self.patches[None], axis=2)  # (n, 3)
+        near = gap < self.RADIUS
+        hit = near.any(axis=1)
+        if not hit.any():
+            return controls
+        patch = np.argmax(near, axis=1)
+        rng, n = self.ctx.rng, len(cav)
+        throttle = controls.throttle + hit * rng.normal(self.means[patch, 0], self.THROTTLE[1], n)
+        steer = controls.steer + hit * rng.normal(self.means[patch, 1], self.STEER[1], n)
+        return Controls(np.clip(steer, -1.0, 1.0), np.clip(throttle, 0.0, 1.0), controls.brake)

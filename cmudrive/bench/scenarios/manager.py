@@ -13,7 +13,7 @@ import numpy as np
 
 from cmudrive.bench.criteria import RouteCriteria
 from cmudrive.bench.routes import RouteSpec
-from cmudrive.bench.scenarios.base import RouteProgress, Scenario, ScenarioConfig, ScenarioContext
+from cmudrive.bench.scenarios.base import Phase, RouteProgress, Scenario, ScenarioConfig, ScenarioContext
 from cmudrive.bench.scenarios.crossings import (
     DynamicObjectCrossing,
     ParkingCrossingPedestrian,
@@ -25,6 +25,7 @@ from cmudrive.bench.scenarios.cutins import HighwayCutIn, ParkingCutIn, StaticCu
 from cmudrive.bench.scenarios.emergency import YieldToEmergencyVehicle
 from cmudrive.bench.scenarios.junctions import (
     BlockedIntersection,
+    ControlLoss,
     SequentialLaneChange,
     T_Junction,
     VanillaNonSignalizedTurn,
@@ -43,6 +44,7 @@ from cmudrive.bench.scenarios.obstacles import (
     ParkedObstacleTwoWays,
 )
 from cmudrive.maps import RoadMap, Route
+from cmudrive.sim.dynamics import Controls
 from cmudrive.sim.snapshot import Snapshot
 from cmudrive.sim.world import World
 
@@ -67,6 +69,7 @@ REGISTRY: dict[str, type[Scenario]] = {
         StaticCutIn,
         YieldToEmergencyVehicle,
         BlockedIntersection,
+        ControlLoss,
         SequentialLaneChange,
         T_Junction,
         VanillaNonSignalizedTurn,
@@ -97,6 +100,13 @@ class ScenarioManager:
         self.progress.update(snap)
         for scenario in self.scenarios:
             scenario.step(snap, self.progress)
+
+    def perturb(self, controls: Controls, cav: np.ndarray) -> Controls:
+        """The agent's controls for the CAVs ``cav`` after the active scenarios changed them (ControlLoss)."""
+        for scenario in self.scenarios:
+            if scenario.phase == Phase.ACTIVE:
+                controls = scenario.perturb(controls, cav, self.progress)
+        return controls
 
     def finish(self) -> None:
         """The route ended: end every scenario still running (actors removed, blocked tests resumed)."""
