@@ -218,3 +218,36 @@ def test_control_loss_adds_noise_near_the_three_patches(tmp_path: Path) -> None:
         noise = applied[near, 0] - asked[near, 0]
         assert np.all(noise > 0) or np.all(noise < 0)
         assert 0.02 < abs(noise.mean()) < 0.09
+
+
+def test_hard_break_stops_the_traffic_ahead_for_10_s(tmp_path: Path) -> None:
+    """HardBreakRoute among background traffic: the background vehicles ahead of CAV 0 on its road brake
+    to a standstill after activation and drive on again 10 s later."""
+    from cmudrive.sim.background import BackgroundConfig
+    from cmudrive.sim.snapshot import Role
+
+    m = load_map("interurban")
+    lane = "R1a-R2a_0"
+    spec = RouteSpec(
+        "hard_break", "interurban", "ClearNoon", 0, (lane_cav(m, 0, lane, 20.0, 400.0),),
+        (scenario("HardBreakRoute", trigger(m, lane, 40.0)),),
+    )  # fmt: skip
+    result, log = run(spec, tmp_path, config=EvalConfig(background=BackgroundConfig(), tick_cap=900))
+    assert result.scenario_simulated is True
+    cav = cav_track(log, 0)
+    s_cav, _ = m.index.project(cav[:, :2], np.full(len(cav), m.lane(lane)))
+    act = int(np.flatnonzero(s_cav >= 38.0)[0])  # activation: CAV 0 2 m short of T
+    snap = log.snapshot(act)
+    bg = np.flatnonzero(snap.role == Role.BACKGROUND)
+    ring = np.array([m.lane("R1a-R2a_0"), m.lane("R1a-R2a_1")])
+    ahead = []
+    for r in bg.tolist():
+        s, d = m.index.project(np.array([[snap.x[r], snap.y[r]]] * 2), ring)
+        if np.abs(d).min() < 1.7 and s_cav[act] + 5.0 < s.min() < m.lane_length[ring[0]] - 30.0:
+            ahead.append(str(snap.ids[r]))
+    assert ahead, "no background vehicle ahead of CAV 0 at activation"
+    speeds = {name: track(log, name)[:, 3] for name in ahead}
+    stopped = [v[act + 180] for v in speeds.values() if not np.isnan(v[act + 180])]  # 9 s after activation
+    assert stopped and max(stopped) < 0.5
+    moving = [v[act + 300] for v in speeds.values() if not np.isnan(v[act + 300])]  # 5 s after the restart
+    assert moving and max(moving) > 3.0

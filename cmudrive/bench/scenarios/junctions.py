@@ -218,3 +218,38 @@ class ControlLoss(RouteRule):
         throttle = controls.throttle + hit * rng.normal(self.means[patch, 0], self.THROTTLE[1], n)
         steer = controls.steer + hit * rng.normal(self.means[patch, 1], self.STEER[1], n)
         return Controls(np.clip(steer, -1.0, 1.0), np.clip(throttle, 0.0, 1.0), controls.brake)
+
+
+class HardBreakRoute(Scenario):
+    """#10: the background traffic ahead brakes to a standstill for 10 s (``StopFront``), then drives on
+    (``StartFront``); the scenario ends once CAV 0 drove 15 m more. The stopped lanes are every driving lane
+    of the edges CAV 0's route takes from T for ``AHEAD`` m (so vehicles behind CAV 0 on its own edge stop
+    too: our background commands work by lane)."""
+
+    type_name = "HardBreakRoute"
+    uses_timeout = False
+    STOP = 10.0  # [s]
+    AFTER = 15.0  # [m] CAV 0 drives after the traffic restarts
+    AHEAD = 200.0  # [m] along CAV 0's route from T whose edges' lanes are stopped
+
+    def place(self) -> None:
+        m, route = self.map, self.ctx.routes[0]
+        k0 = self.trigger_index
+        ahead = (route.distance >= route.distance[k0]) & (route.distance <= route.distance[k0] + self.AHEAD)
+        edges = np.unique(m.lane_edge[route.lane[ahead]])
+        self.lanes = np.flatnonzero(np.isin(m.lane_edge, edges) & (m.lane_kind == 0)).tolist()
+        self.restart_at = math.nan  # [m] CAV 0's route distance when the traffic restarted
+
+    def on_activate(self, snap: Snapshot) -> None:
+        if self.world.background is not None:
+            self.world.background.stop_lane(self.lanes)
+
+    def on_update(self, snap: Snapshot, progress: RouteProgress) -> bool:
+        driven = float(self.ctx.routes[0].distance[progress.index[0]])
+        if math.isnan(self.restart_at):
+            if self.time - self.activated_at >= self.STOP:
+                if self.world.background is not None:
+                    self.world.background.release_lane(self.lanes)
+                self.restart_at = driven
+            return False
+        return driven - self.restart_at >= self.AFTER

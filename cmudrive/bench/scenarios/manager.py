@@ -26,6 +26,7 @@ from cmudrive.bench.scenarios.emergency import YieldToEmergencyVehicle
 from cmudrive.bench.scenarios.junctions import (
     BlockedIntersection,
     ControlLoss,
+    HardBreakRoute,
     SequentialLaneChange,
     T_Junction,
     VanillaNonSignalizedTurn,
@@ -70,6 +71,7 @@ REGISTRY: dict[str, type[Scenario]] = {
         YieldToEmergencyVehicle,
         BlockedIntersection,
         ControlLoss,
+        HardBreakRoute,
         SequentialLaneChange,
         T_Junction,
         VanillaNonSignalizedTurn,
