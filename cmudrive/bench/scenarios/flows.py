@@ -48,6 +48,7 @@ class VehicleFlow:
         self.source, self.sink, self.gap_range, self.speed = source, sink, gap, float(speed)
         self.rng, self.imposed = rng, imposed
         path = RoutePlanner(road_map).plan_lanes(LanePos(source.lane, source.s), LanePos(sink.lane, sink.s))
+        self.path = path
         self.path_length = path.length  # [m]
         names = [
             str(road_map.edge_ids[road_map.lane_edge[x]]) for x in path.path if not road_map.lane_internal[x]
@@ -88,15 +89,34 @@ class VehicleFlow:
                 return
         self._spawn()
 
-    def _spawn(self) -> None:
+    def prefill(self) -> None:
+        """Cars every gap U[from, to] along the path from the source to ``SINK_RADIUS`` short of the sink,
+        the one nearest the source last (the next spawn waits for it). SUMO cannot insert a car on a
+        junction's internal lane: places inside a junction are skipped."""
+        m, path = self.map, self.path
+        places: list[int] = []
+        d = self.gap
+        while d < path.length - SINK_RADIUS - 0.5 * ACTOR_TYPES[FLOW_TYPE].length:
+            places.append(int(np.searchsorted(path.distance, d)))
+            d += self._draw()
+        for k in reversed(places):
+            lane = int(path.lane[k])
+            if m.lane_internal[lane]:
+                continue
+            edge = str(m.edge_ids[m.lane_edge[lane]])
+            self._spawn(LanePoint(lane, float(path.s[k])), self.edges[self.edges.index(edge) :])
+        self._spawn()
+
+    def _spawn(self, at: LanePoint | None = None, edges: list[str] | None = None) -> None:
         car = f"{self.name}:{self.spawned}"
         self.spawned += 1
         half = 0.5 * ACTOR_TYPES[FLOW_TYPE].length
-        lane_index = int(self.map.lane_index[self.source.lane])
+        at = at or self.source
         sumo = self.world.sumo
         sumo.add_vehicle(
-            car, FLOW_TYPE, self.edges, int(Role.SCENARIO), depart_pos=self.source.s + half,
-            depart_lane=lane_index, depart_speed=self.speed,
+            car, FLOW_TYPE, edges or self.edges, int(Role.SCENARIO),
+            depart_pos=min(at.s + half, float(self.map.lane_length[at.lane]) - 0.1),
+            depart_lane=int(self.map.lane_index[at.lane]), depart_speed=self.speed,
         )  # fmt: skip
         if self.imposed:
             sumo.override(

@@ -13,6 +13,13 @@ import numpy as np
 
 from cmudrive.bench.criteria import RouteCriteria
 from cmudrive.bench.routes import RouteSpec
+from cmudrive.bench.scenarios.actorflows import (
+    EnterActorFlow,
+    HighwayExit,
+    InterurbanActorFlow,
+    MergerIntoSlowTraffic,
+    MergerIntoSlowTrafficV2,
+)
 from cmudrive.bench.scenarios.base import Phase, RouteProgress, Scenario, ScenarioConfig, ScenarioContext
 from cmudrive.bench.scenarios.crossings import (
     DynamicObjectCrossing,
@@ -73,6 +80,11 @@ REGISTRY: dict[str, type[Scenario]] = {
         ControlLoss,
         HardBreakRoute,
         SequentialLaneChange,
+        EnterActorFlow,
+        HighwayExit,
+        InterurbanActorFlow,
+        MergerIntoSlowTraffic,
+        MergerIntoSlowTrafficV2,
         T_Junction,
         VanillaNonSignalizedTurn,
         VanillaNonSignalizedTurnEncounterStopsign,
