@@ -159,6 +159,7 @@ def evaluate_route(
         try:
             loop.setup(_setup(spec, road_map, routes, cav_ids, privileged))
             loop.run()
+            scenarios.finish()  # scenario actors leave, blocked tests resume (before the world closes)
         except AgentCrash:
             criteria.end_route(STATUS_AGENT_CRASHED)
             error = traceback.format_exc()
@@ -166,7 +167,6 @@ def evaluate_route(
             criteria.end_route(STATUS_SIM_CRASHED)
             error = traceback.format_exc()
         finally:
-            scenarios.finish()
             _destroy(agent)
         cavs = criteria.results()
         for i, cav in enumerate(cavs):

@@ -32,6 +32,7 @@ from cmudrive.bench.scenarios.flows import VehicleFlow
 from cmudrive.bench.scenarios.junctions import exit_distance
 from cmudrive.bench.scenarios.params import Param
 from cmudrive.bench.scenarios.placement import LanePoint, heading, point_xy
+from cmudrive.maps import RouteError
 from cmudrive.maps.coords import carla_to_map
 from cmudrive.maps.model import LaneKind
 from cmudrive.sim.snapshot import Snapshot
@@ -71,6 +72,16 @@ class ActorFlowScenario(Scenario):
         self.sinks = np.array([point_xy(self.map, b) for _, b in self.pairs])  # (k, 2)
         self.sink_heading = np.array([heading(self.map, b) for _, b in self.pairs])
         self.flows: list[VehicleFlow] = []
+        gap, speed = self.span("source_dist_interval"), self.num("flow_speed")
+        for k, (a, b) in enumerate(self.pairs):
+            name = f"{self.spec.name}:flow{k}"
+            try:
+                self.flows.append(
+                    VehicleFlow(name, self.world, self.map, a, b, gap, speed, self.ctx.rng, True)
+                )
+            except RouteError as exc:  # EnterActorFlow: a lane pair with no path is left out
+                if k == 0 or not self.all_lanes:
+                    raise self.error(f"no lane path from start_actor_flow to end_actor_flow: {exc}") from None
         self.goal = np.full(len(self.ctx.routes), math.inf)  # [m] along each charged CAV's route
         for i, r in enumerate(self.ctx.routes):
             k0 = int(np.argmin(np.linalg.norm(r.xy - self.trigger_xy, axis=1)))
@@ -99,20 +110,9 @@ class ActorFlowScenario(Scenario):
 
     def on_activate(self, snap: Snapshot) -> None:
         background, m = self.world.background, self.map
-        lo, hi = self.span("source_dist_interval")
-        for k, (a, b) in enumerate(self.pairs):
-            try:
-                flow = VehicleFlow(
-                    f"{self.spec.name}:flow{k}", self.world, m, a, b, (lo, hi), self.num("flow_speed"),
-                    self.ctx.rng, imposed=True,
-                )  # fmt: skip
-            except Exception as exc:  # no lane path from this source to this sink
-                if k == 0 or not self.all_lanes:
-                    raise self.error(f"no lane path from start_actor_flow to end_actor_flow: {exc}") from exc
-                continue
+        for flow in self.flows:
             if self.prefill:
                 flow.prefill()
-            self.flows.append(flow)
         if background is not None:
             if self.remove_source_lane:
                 background.remove_lane([a.lane for a, _ in self.pairs])

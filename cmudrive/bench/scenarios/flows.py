@@ -27,6 +27,7 @@ from cmudrive.sim.world import World
 
 SINK_RADIUS = 2.0  # [m] a car this close to the sink is removed
 FLOW_TYPE = "car"
+IMPOSED_SPEED_FACTOR = 3.0  # an ActorFlow car may drive this many times a lane's limit (its speed is imposed)
 
 
 class VehicleFlow:
@@ -122,6 +123,11 @@ class VehicleFlow:
             sumo.override(
                 car, ignore_lights=True, ignore_right_of_way=True, speed=self.speed, lane_changes=False
             )
+            import libsumo
+
+            libsumo.vehicle.setSpeedFactor(
+                car, IMPOSED_SPEED_FACTOR
+            )  # lane limits must not cap the flow speed
         else:
             import libsumo
 

@@ -51,6 +51,14 @@ from cmudrive.bench.scenarios.obstacles import (
     ParkedObstacle,
     ParkedObstacleTwoWays,
 )
+from cmudrive.bench.scenarios.turns import (
+    NonSignalizedJunctionLeftTurn,
+    NonSignalizedJunctionLeftTurnEnterFlow,
+    NonSignalizedJunctionRightTurn,
+    SignalizedJunctionLeftTurn,
+    SignalizedJunctionLeftTurnEnterFlow,
+    SignalizedJunctionRightTurn,
+)
 from cmudrive.maps import RoadMap, Route
 from cmudrive.sim.dynamics import Controls
 from cmudrive.sim.snapshot import Snapshot
@@ -90,6 +98,12 @@ REGISTRY: dict[str, type[Scenario]] = {
         VanillaNonSignalizedTurnEncounterStopsign,
         VanillaSignalizedTurnEncounterGreenLight,
         VanillaSignalizedTurnEncounterRedLight,
+        NonSignalizedJunctionLeftTurn,
+        NonSignalizedJunctionLeftTurnEnterFlow,
+        NonSignalizedJunctionRightTurn,
+        SignalizedJunctionLeftTurn,
+        SignalizedJunctionLeftTurnEnterFlow,
+        SignalizedJunctionRightTurn,
     )
 }
 
