@@ -20,6 +20,7 @@ from cmudrive.bench.scenarios.actorflows import (
     MergerIntoSlowTraffic,
     MergerIntoSlowTrafficV2,
 )
+from cmudrive.bench.scenarios.adversaries import OppositeVehicleRunningRedLight, OppositeVehicleTakingPriority
 from cmudrive.bench.scenarios.base import Phase, RouteProgress, Scenario, ScenarioConfig, ScenarioContext
 from cmudrive.bench.scenarios.crossings import (
     DynamicObjectCrossing,
@@ -104,6 +105,8 @@ REGISTRY: dict[str, type[Scenario]] = {
         SignalizedJunctionLeftTurn,
         SignalizedJunctionLeftTurnEnterFlow,
         SignalizedJunctionRightTurn,
+        OppositeVehicleRunningRedLight,
+        OppositeVehicleTakingPriority,
     )
 }
 
