@@ -195,3 +195,40 @@ FREQ = {
     "ConstructionObstacleTwoWays": {"from": "20", "to": "40"},
     "HazardAtSideLaneTwoWays": "100",
 }
+
+
+@pytest.mark.parametrize(("town", "lane"), [("downtown", "J0_0-J0_1_2"), ("Town03", "-21_4")])
+def test_parked_car_opens_its_door_into_the_lane(town: str, lane: str, tmp_path: Path) -> None:
+    """VehicleOpensDoorTwoWays: the car parked in the side lane 40 m past T opens its door into CAV 0's
+    lane when CAV 0 is 3 s away (or 10 m); 5 s later the oncoming flow starts."""
+    m = load_map(town)
+    i = m.lane(lane)
+    sc = ScenarioSpec("S1", "VehicleOpensDoorTwoWays", trigger(m, lane, 20.0), {"distance": "40"})
+    spec = RouteSpec(
+        f"door_{town}",
+        town,
+        "ClearNoon",
+        0,
+        (lane_cav(m, 0, lane, 5.0, min(150.0, m.lane_length[i] - 3.0)),),
+        (sc,),
+    )
+    result, log = run(spec, tmp_path)
+    assert result.scenario_simulated is True
+    car, door, cav = track(log, "S1:car"), track(log, "S1:door"), cav_track(log, 0)
+    s_car, d_car = frenet(m, lane, car[0, :2])
+    assert (
+        s_car[0] == pytest.approx(60.0, abs=0.6) and abs(d_car[0]) > 0.5 * m.lane_width[i]
+    )  # beside the lane
+    opened = int(np.flatnonzero(~np.isnan(door[:, 0]))[0])
+    f = m.index.frenet_to_xy(np.array([i]), np.array([60.0]))[0]
+    gap = np.linalg.norm(cav[opened - 2 : opened, :2] - f, axis=1)
+    assert gap[0] / cav[opened - 2, 3] >= 3.0 - 0.05 or gap[0] >= 10.0
+    assert gap[1] / cav[opened - 1, 3] < 3.1 or gap[1] < 10.0
+    # the door's outer end reaches into CAV 0's lane
+    tip = door[opened, :2] + 0.5 * 1.0 * np.array([np.cos(door[opened, 2]), np.sin(door[opened, 2])])
+    _, d_tip = frenet(m, lane, tip)
+    assert abs(d_tip[0]) < 0.5 * m.lane_width[i]
+    flow = sorted({a for a in log.arrays["actor_id"].tolist() if a.startswith("S1:opp")})
+    assert flow
+    start = int(np.flatnonzero(~np.isnan(track(log, flow[0])[:, 0]))[0])
+    assert (start - opened) * 0.05 == pytest.approx(5.0, abs=0.15)

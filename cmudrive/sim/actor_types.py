@@ -220,6 +220,10 @@ ACTOR_TYPES: dict[str, ActorType] = {
         ActorType(
             "warning_sign", ActorKind.PROP, "custom2", 0.3, 1.2, 1.5, 0.0, 1.0, 1.0, 0.0, colour=(255, 200, 0)
         ),
+        # an open car door (VehicleOpensDoorTwoWays): part of a vehicle, so a contact is a vehicle collision
+        ActorType(
+            "car_door", ActorKind.CAR, "custom2", 1.0, 0.15, 1.2, 0.0, 1.0, 1.0, 0.0, colour=(110, 110, 120)
+        ),
         # occluders scenarios stand on a sidewalk (CARLA: advertisement board, vending machine, container)
         ActorType(
             "advertisement",

@@ -51,6 +51,7 @@ from cmudrive.bench.scenarios.obstacles import (
     HazardAtSideLaneTwoWays,
     ParkedObstacle,
     ParkedObstacleTwoWays,
+    VehicleOpensDoorTwoWays,
 )
 from cmudrive.bench.scenarios.turns import (
     NonSignalizedJunctionLeftTurn,
@@ -107,6 +108,7 @@ REGISTRY: dict[str, type[Scenario]] = {
         SignalizedJunctionRightTurn,
         OppositeVehicleRunningRedLight,
         OppositeVehicleTakingPriority,
+        VehicleOpensDoorTwoWays,
     )
 }
 

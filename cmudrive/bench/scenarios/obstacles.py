@@ -35,7 +35,7 @@ from typing import ClassVar
 import numpy as np
 
 from cmudrive.bench.scenarios.base import RouteProgress, Scenario
-from cmudrive.bench.scenarios.behaviours import PathMotion, ahead_of, lane_path, within
+from cmudrive.bench.scenarios.behaviours import PathMotion, ahead_of, lane_path, time_to_arrival, within
 from cmudrive.bench.scenarios.flows import VehicleFlow
 from cmudrive.bench.scenarios.params import DIRECTION, KMH, Param
 from cmudrive.bench.scenarios.placement import (
@@ -48,7 +48,8 @@ from cmudrive.bench.scenarios.placement import (
     walk,
     width,
 )
-from cmudrive.maps.model import NO_INDEX
+from cmudrive.maps.model import NO_INDEX, LaneKind
+from cmudrive.sim.actor_types import ACTOR_TYPES
 from cmudrive.sim.snapshot import Snapshot
 
 IDLE = 5.0  # [s] after a CAV came close, before background traffic is capped
@@ -140,7 +141,7 @@ class LaneObstacle(Scenario):
             self.spawn_items()
 
     def on_update(self, snap: Snapshot, progress: RouteProgress) -> bool:
-        if np.isnan(self.close_at) and within(progress, self.close_point(), self.close_distance):
+        if np.isnan(self.close_at) and self.close_trigger(progress):
             self.close_at = self.time
         if not self.capped and self.time - self.close_at >= IDLE:
             self.capped = True
@@ -152,6 +153,10 @@ class LaneObstacle(Scenario):
 
     def close_point(self) -> np.ndarray:
         return self.first_xy
+
+    def close_trigger(self, progress: RouteProgress) -> bool:
+        """A CAV came close: the idle before the background cap (or the TwoWays switches) starts."""
+        return within(progress, self.close_point(), self.close_distance)
 
     def update_passed(self, progress: RouteProgress) -> None:
         self.passed |= progress.present & ahead_of(progress.xy, self.end_xy, self.end_heading)
@@ -381,3 +386,52 @@ class HazardAtSideLaneTwoWays(HazardAtSideLane):
         *HazardAtSideLane.params,
         Param("frequency", "m", 100.0, lo=5.0, hi=1000.0),
     )
+
+
+class VehicleOpensDoorTwoWays(LaneObstacle):
+    """#41: a car parked in the side lane opens its door into the ego lane on a two-way road."""
+
+    type_name = "VehicleOpensDoorTwoWays"
+    two_ways = True
+    warning_sign = False
+    leave_space_extra = 20.0
+    params: ClassVar[tuple[Param, ...]] = (
+        Param("distance", "m", 50.0, lo=5.0, hi=400.0),
+        DIRECTION,
+        FREQUENCY,
+        Param("speed", "km/h", 60.0, lo=0.0, hi=130.0),  # read upstream, unused
+    )
+    DOOR_HINGE = 0.9  # [m] ahead of the car's centre
+    DOOR_ANGLE = np.radians(60.0)  # opened this far from the car's side
+
+    def layout(self) -> list[Item]:
+        m, lane = self.map, self.t_wp.lane
+        k = int(m.lane_index[lane]) + (-1 if self.direction == "right" else 1)
+        side = np.flatnonzero((m.lane_edge == m.lane_edge[lane]) & (m.lane_index == k))
+        if len(side) != 1 or m.lane_kind[side[0]] == LaneKind.DRIVING:
+            raise self.error(
+                f"no place for the parked car: lane {m.lane_ids[lane]} has no parking or shoulder lane on "
+                f"its {self.direction}"
+            )
+        w, w_side = width(m, self.t_wp), float(m.lane_width[side[0]])
+        half = 0.5 * ACTOR_TYPES["car"].width
+        at = self.fwd(self.t_wp, self.num("distance"), "parked car")
+        offset = side_sign(self.direction) * (0.5 * w + 0.5 * w_side - (w_side - half) / 4.0)
+        return [Item("car", "car", at, offset)]
+
+    def close_trigger(self, progress: RouteProgress) -> bool:
+        """TTA(3.0 s, 10 m, F): the door opens (and stays open); the 5 s idle starts."""
+        item = self.items[0]
+        if not time_to_arrival(progress, point_xy(self.map, item.at), 3.0, 10.0):
+            return False
+        h = heading(self.map, item.at)
+        car = point_xy(self.map, item.at, item.offset)
+        toward = -side_sign(self.direction)  # the door on the ego-lane side: +1 left of the car
+        normal = np.array([-np.sin(h), np.cos(h)]) * toward
+        hinge = (
+            car + self.DOOR_HINGE * np.array([np.cos(h), np.sin(h)]) + 0.5 * ACTOR_TYPES["car"].width * normal
+        )
+        yaw = h + np.pi - toward * self.DOOR_ANGLE  # swung open backwards, out into the lane
+        centre = hinge + 0.5 * ACTOR_TYPES["car_door"].length * np.array([np.cos(yaw), np.sin(yaw)])
+        self.spawn("door", "car_door", centre, yaw, prop=True)
+        return True
