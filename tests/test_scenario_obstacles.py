@@ -232,3 +232,34 @@ def test_parked_car_opens_its_door_into_the_lane(town: str, lane: str, tmp_path:
     assert flow
     start = int(np.flatnonzero(~np.isnan(track(log, flow[0])[:, 0]))[0])
     assert (start - opened) * 0.05 == pytest.approx(5.0, abs=0.15)
+
+
+@pytest.mark.parametrize(("town", "lane"), [("downtown", "J0_0-J0_1_2"), ("Town01", "-6_2")])
+def test_invading_cars_cross_the_centre_line(town: str, lane: str, tmp_path: Path) -> None:
+    """InvadingTurn (distance 60 m, offset 0.25 m): cones on the oncoming lane 0.4 w toward its outer edge;
+    oncoming cars every 40 m at the speed limit, offset + w/2 - 0.7 m toward the ego lane, so their
+    boxes cross the centre line by offset + half-width - 0.7 m."""
+    m = load_map(town)
+    i = m.lane(lane)
+    opposite = int(m.lane_opposite[i])
+    w = float(m.lane_width[opposite])
+    sc = ScenarioSpec("S1", "InvadingTurn", trigger(m, lane, 10.0), {"distance": "60", "offset": "0.25"})
+    spec = RouteSpec(f"invading_{town}", town, "ClearNoon", 0, (lane_cav(m, 0, lane, 5.0, 135.0),), (sc,))
+    result, log = run(spec, tmp_path)
+    assert result.scenario_simulated is True
+    ids = {a for a in log.arrays["actor_id"].tolist() if a.startswith("S1:")}
+    cones = sorted(a for a in ids if a.startswith("S1:cone"))
+    assert len(cones) == 6  # every 5 m while covering < 30 m
+    for c in cones:
+        first = track(log, c)[~np.isnan(track(log, c)[:, 0])][0]
+        _, d = m.index.project(first[None, :2], np.array([opposite]))
+        assert d[0] == pytest.approx(-0.4 * w, abs=0.1)
+    cars = sorted((a for a in ids if a.startswith("S1:inv")), key=lambda a: int(a[6:]))
+    assert len(cars) >= 2
+    for c in cars:
+        tr = track(log, c)
+        rows = np.flatnonzero(~np.isnan(tr[:, 0]))
+        _, d = m.index.project(tr[rows, :2], np.full(len(rows), opposite))
+        assert np.median(d) == pytest.approx(0.25 + 0.5 * w - 0.7, abs=0.05)
+        assert np.median(d) + 0.5 * 1.85 > 0.5 * w  # the box crosses the centre line
+        assert tr[rows[1:-1], 3] == pytest.approx(m.lane_speed[i])

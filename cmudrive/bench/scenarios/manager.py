@@ -31,6 +31,7 @@ from cmudrive.bench.scenarios.crossings import (
 )
 from cmudrive.bench.scenarios.cutins import HighwayCutIn, ParkingCutIn, StaticCutIn
 from cmudrive.bench.scenarios.emergency import YieldToEmergencyVehicle
+from cmudrive.bench.scenarios.invading import InvadingTurn
 from cmudrive.bench.scenarios.junctions import (
     BlockedIntersection,
     ControlLoss,
@@ -109,6 +110,7 @@ REGISTRY: dict[str, type[Scenario]] = {
         OppositeVehicleRunningRedLight,
         OppositeVehicleTakingPriority,
         VehicleOpensDoorTwoWays,
+        InvadingTurn,
     )
 }
 
