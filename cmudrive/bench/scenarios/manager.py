@@ -54,6 +54,7 @@ from cmudrive.bench.scenarios.obstacles import (
     ParkedObstacleTwoWays,
     VehicleOpensDoorTwoWays,
 )
+from cmudrive.bench.scenarios.parking import ParkingExit
 from cmudrive.bench.scenarios.turns import (
     NonSignalizedJunctionLeftTurn,
     NonSignalizedJunctionLeftTurnEnterFlow,
@@ -111,6 +112,7 @@ REGISTRY: dict[str, type[Scenario]] = {
         OppositeVehicleTakingPriority,
         VehicleOpensDoorTwoWays,
         InvadingTurn,
+        ParkingExit,
     )
 }
 
