@@ -106,7 +106,7 @@ def test_a_bad_scenario_does_not_stop_the_other_routes(tmp_path: Path) -> None:
 
 def test_unimplemented_types_are_reported_not_simulated(tmp_path: Path) -> None:
     result, _ = run(
-        ring_spec("vanilla", kind="OppositeVehicleTakingPriority"),
+        ring_spec("vanilla", kind="CrossingBicycleFlow"),
         tmp_path,
         config=EvalConfig(background=EMPTY, tick_cap=40),
     )
