@@ -107,3 +107,62 @@ def test_flow_cars_run_source_to_sink_at_flow_speed(kind: str, town: str, tmp_pa
         exit_k = int(inside[0]) + int(np.flatnonzero(~route.in_junction[inside[0] :])[0])
         k = int(np.argmin(np.linalg.norm(route.xy - cav[end + 1, :2], axis=1)))
         assert route.distance[exit_k] - 1.5 <= route.distance[k] <= route.distance[exit_k] + 2.0
+
+
+@pytest.mark.parametrize(
+    ("town", "a", "b"), [("suburb", "J1_1-J0_1_1", "J0_1-J0_0_2"), ("Town01", "-24_2", "-6_2")]
+)
+def test_interurban_advanced_two_flows_on_both_carriageways(
+    town: str, a: str, b: str, tmp_path: Path
+) -> None:
+    """CAV 0 turns left across flow 1 (the near carriageway, from its left) into flow 2 (the far one,
+    the oncoming lanes beside flow 1's sink and source); the scenario ends when CAV 0 reached flow 2's
+    sink."""
+    from cmudrive.maps.model import TurnDir
+
+    m = load_map(town)
+    ia, ib = m.lane(a), m.lane(b)
+    j = int(m.lane_junction[m.successors(ia)[0]])
+
+    def end_heading(lane: int) -> float:
+        p = m.polyline(lane)
+        return float(np.arctan2(*(p[-1] - p[-2])[::-1]))
+
+    driving = (m.lane_kind[m.link_from] == 0) & ~m.lane_internal[m.link_from]
+    links = np.flatnonzero((m.link_junction == j) & (m.link_dir == TurnDir.STRAIGHT) & driving)
+    left = [
+        k for k in links
+        if abs(np.angle(np.exp(1j * (end_heading(int(m.link_from[k])) - end_heading(ia) + np.pi / 2)))) < 0.6
+    ]  # fmt: skip
+    src_lane, dst_lane = int(m.link_from[left[0]]), int(m.link_to[left[0]])
+    src_s, dst_s = max(1.0, m.lane_length[src_lane] - 60.0), min(50.0, m.lane_length[dst_lane] - 5.0)
+    xy = np.array(
+        [
+            m.index.frenet_to_xy(np.array([ia]), np.array([max(2.0, m.lane_length[ia] - 50.0)]))[0],
+            m.index.frenet_to_xy(np.array([ia]), np.array([m.lane_length[ia] - 2.0]))[0],
+            m.index.frenet_to_xy(np.array([ib]), np.array([min(90.0, m.lane_length[ib] - 5.0)]))[0],
+        ]
+    )
+
+    def loc(lane: int, s: float) -> dict[str, str]:
+        c = map_to_carla(m.index.frenet_to_xy(np.array([lane]), np.array([s])))[0]
+        return {"x": str(c[0]), "y": str(c[1]), "z": "0"}
+
+    sc = scenario(
+        "InterurbanAdvancedActorFlow", trigger(m, a, max(3.0, m.lane_length[ia] - 40.0)),
+        start_actor_flow=loc(src_lane, src_s), end_actor_flow=loc(dst_lane, dst_s), flow_speed="10",
+        source_dist_interval={"from": "20", "to": "30"},
+    )  # fmt: skip
+    spec = RouteSpec(f"iaaf_{town}", town, "ClearNoon", 0, (path_cav(m, 0, xy),), (sc,))
+    result, log = run(spec, tmp_path)
+    assert result.scenario_simulated is True
+    ids = {x for x in log.arrays["actor_id"].tolist() if x.startswith("S1:flow")}
+    one, two = track(log, "S1:flow0:0"), track(log, "S1:flow1:0")
+    r1, r2 = np.flatnonzero(~np.isnan(one[:, 0])), np.flatnonzero(~np.isnan(two[:, 0]))
+    assert {x.split(":")[1] for x in ids} == {"flow0", "flow1"}
+    assert abs(np.angle(np.exp(1j * (one[r1[5], 2] - two[r2[5], 2])))) > 2.5  # opposite directions
+    _, d = m.index.project(two[r2[5], :2][None], np.array([int(m.lane_opposite[src_lane])]))
+    assert abs(d[0]) < 0.3  # flow 2 on the lane beside flow 1's source (CAV 0's target road)
+    end = max(int(np.flatnonzero(~np.isnan(track(log, x)[:, 0]))[-1]) for x in ids)
+    sink2 = m.index.frenet_to_xy(np.array([src_lane]), np.array([src_s]))[0]
+    assert np.linalg.norm(cav_track(log, 0)[end + 1, :2] - sink2) < 3.5 + 4.0  # CAV 0 reached flow 2's sink

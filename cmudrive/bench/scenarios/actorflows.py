@@ -64,6 +64,8 @@ class ActorFlowScenario(Scenario):
         proj = self.map.index.nearest_lane(xy[None], max_distance=SNAP)
         if proj.lane[0] < 0:
             raise self.error(f"parameter {name!r}: no driving lane within {SNAP:g} m of it")
+        if self.map.lane_internal[proj.lane[0]]:
+            raise self.error(f"parameter {name!r}: it lies inside a junction; flows start and end on roads")
         return LanePoint(int(proj.lane[0]), float(proj.s[0]))
 
     def place(self) -> None:
@@ -182,3 +184,44 @@ class InterurbanActorFlow(ActorFlowScenario):
     prefill = False
     end_at_sink = False
     opposite_off = True
+
+
+class InterurbanAdvancedActorFlow(ActorFlowScenario):
+    """#16: cross flow 1, then merge into flow 2 on the opposite carriageway of the same road. Flow 1 runs
+    from ``start_actor_flow`` to ``end_actor_flow``; flow 2 from the oncoming lane beside flow 1's sink to
+    the oncoming lane beside flow 1's source; neither is pre-filled; the junction is cleared and background
+    oncoming traffic paused; ends when the charged CAVs reached flow 2's sink."""
+
+    type_name = "InterurbanAdvancedActorFlow"
+    params: ClassVar[tuple[Param, ...]] = (
+        *FLOW_PARAMS,
+        Param("direction", "", "right", choices=("right", "left")),
+    )
+    prefill = False
+    clear_junction = True
+    opposite_off = True
+
+    def place(self) -> None:
+        super().place()
+        m = self.map
+        source, sink = self.pairs[0]
+        beside = []
+        for p in (sink, source):
+            opposite = int(m.lane_opposite[p.lane])
+            if opposite < 0:
+                raise self.error(
+                    f"no place for flow 2: lane {m.lane_ids[p.lane]} of flow 1 has no oncoming lane beside it"
+                )
+            s, _ = m.index.project(point_xy(m, p)[None], np.array([opposite]))
+            beside.append(LanePoint(opposite, float(s[0])))
+        name = f"{self.spec.name}:flow1"
+        gap, speed = self.span("source_dist_interval"), self.num("flow_speed")
+        try:
+            self.flows.append(
+                VehicleFlow(name, self.world, m, beside[0], beside[1], gap, speed, self.ctx.rng, True)
+            )
+        except RouteError as exc:
+            raise self.error(f"no lane path for flow 2: {exc}") from None
+        self.pairs.append((beside[0], beside[1]))
+        self.sinks = point_xy(m, beside[1])[None]  # the end: flow 2's sink
+        self.sink_heading = np.array([heading(m, beside[1])])

@@ -17,6 +17,7 @@ from cmudrive.bench.scenarios.actorflows import (
     EnterActorFlow,
     HighwayExit,
     InterurbanActorFlow,
+    InterurbanAdvancedActorFlow,
     MergerIntoSlowTraffic,
     MergerIntoSlowTrafficV2,
 )
@@ -113,6 +114,7 @@ REGISTRY: dict[str, type[Scenario]] = {
         VehicleOpensDoorTwoWays,
         InvadingTurn,
         ParkingExit,
+        InterurbanAdvancedActorFlow,
     )
 }
 
