@@ -145,6 +145,7 @@ def evaluate_route(
         try:
             scenarios = build_scenarios(spec, world, road_map, routes, criteria, config.scenarios)
         except ScenarioError as exc:
+            _destroy(agent)
             raise RouteInputError(str(exc)) from exc
         recorder = _recorder(spec, routes, config)
         observer = ObservationBuilder(
