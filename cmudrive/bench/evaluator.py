@@ -41,6 +41,7 @@ from cmudrive.bench.records import (
     record_stem,
 )
 from cmudrive.bench.routes import RouteSpec
+from cmudrive.bench.scenarios import ScenarioConfig, ScenarioError, ScenarioManager, build_scenarios
 from cmudrive.maps import MapError, RoadMap, Route, load_map, load_scenery
 from cmudrive.sim.background import BackgroundActivity, BackgroundConfig
 from cmudrive.sim.dynamics import ControlError, Controls
@@ -66,6 +67,7 @@ class EvalConfig:
     background: BackgroundConfig = field(default_factory=BackgroundConfig)
     criteria: CriteriaConfig = field(default_factory=CriteriaConfig)
     sensors: SensorConfig = field(default_factory=SensorConfig)
+    scenarios: ScenarioConfig = field(default_factory=ScenarioConfig)
     record_dir: Path | None = None  # write a replayable log per route here
 
     def __post_init__(self) -> None:
@@ -141,6 +143,11 @@ def evaluate_route(
         cav_ids = list(world.cav_ids)
         scenery = load_scenery(road_map)  # what CAVs can hit and what hides actors from cameras
         criteria = RouteCriteria(road_map, routes, cav_ids, config.criteria, DT, scenery=scenery)
+        try:
+            scenarios = build_scenarios(spec, world, road_map, routes, criteria, config.scenarios)
+        except ScenarioError as exc:
+            _destroy(agent)
+            raise RouteInputError(str(exc)) from exc
         recorder = _recorder(spec, routes, config)
         observer = ObservationBuilder(
             declared,
@@ -151,11 +158,12 @@ def evaluate_route(
             rng=np.random.default_rng([spec.seed, 1]),  # sensors' own stream: traffic is unchanged
             road_map=road_map,
         )
-        loop = _Loop(world, criteria, agent, observer, config, recorder, hooks, spec)
+        loop = _Loop(world, criteria, agent, observer, config, recorder, hooks, spec, scenarios)
         error = None
         try:
             loop.setup(_setup(spec, road_map, routes, cav_ids, privileged))
             loop.run()
+            scenarios.finish()  # scenario actors leave, blocked tests resume (before the world closes)
         except AgentCrash:
             criteria.end_route(STATUS_AGENT_CRASHED)
             error = traceback.format_exc()
@@ -185,7 +193,7 @@ def evaluate_route(
     result.ticks = world.step_count
     result.wall_time = time.perf_counter() - started
     result.error = error
-    result.scenario_simulated = False if spec.scenarios else None  # no scenario behaviour runs yet
+    result.scenario_simulated = scenarios.simulated  # None without scenarios
     if observer.link_stats is not None:
         result.v2v = observer.link_stats.to_json()
     return result
@@ -242,8 +250,10 @@ class _Loop:
         recorder: RouteRecorder | None,
         hooks: RouteHooks,
         spec: RouteSpec,
+        scenarios: ScenarioManager | None = None,
     ) -> None:
         self.world, self.criteria, self.agent = world, criteria, agent
+        self.scenarios = scenarios or ScenarioManager([], [], [])
         self.observer, self.config, self.recorder = observer, config, recorder
         self.privileged = Observation.PRIVILEGED in observer.declared
         self.asks_partners = observer.network is not None
@@ -270,7 +280,7 @@ class _Loop:
         scenario = s.scenarios[0].type if s.scenarios else ""
         result = route_result(s.id, s.town, s.weather, scenario, self.criteria.results(), seed=s.seed)
         result.ticks = self.world.step_count
-        result.scenario_simulated = False if s.scenarios else None  # as in the final record
+        result.scenario_simulated = self.scenarios.simulated  # as in the final record
         return result
 
     def run(self) -> None:
@@ -279,6 +289,8 @@ class _Loop:
         for tick in range(self.config.tick_cap):
             rows, index = _active_cavs(snap, world)
             controls = self._agent_step(snap, tick, rows, index)
+            self.scenarios.update(snap)  # scripted actors move before the world ticks
+            controls = self.scenarios.perturb(controls, index)  # ControlLoss noise on the CAVs' controls
             try:
                 snap = world.tick(controls)
             except ControlError as exc:

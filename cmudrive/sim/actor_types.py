@@ -220,6 +220,40 @@ ACTOR_TYPES: dict[str, ActorType] = {
         ActorType(
             "warning_sign", ActorKind.PROP, "custom2", 0.3, 1.2, 1.5, 0.0, 1.0, 1.0, 0.0, colour=(255, 200, 0)
         ),
+        # an open car door (VehicleOpensDoorTwoWays): part of a vehicle, so a contact is a vehicle collision
+        ActorType(
+            "car_door", ActorKind.CAR, "custom2", 1.0, 0.15, 1.2, 0.0, 1.0, 1.0, 0.0, colour=(110, 110, 120)
+        ),
+        # occluders scenarios stand on a sidewalk (CARLA: advertisement board, vending machine, container)
+        ActorType(
+            "advertisement",
+            ActorKind.PROP,
+            "custom2",
+            2.4,
+            0.4,
+            2.3,
+            0.0,
+            1.0,
+            1.0,
+            0.0,
+            colour=(200, 200, 220),
+        ),
+        ActorType(
+            "vending_machine",
+            ActorKind.PROP,
+            "custom2",
+            1.0,
+            0.8,
+            1.9,
+            0.0,
+            1.0,
+            1.0,
+            0.0,
+            colour=(200, 60, 60),
+        ),
+        ActorType(
+            "container", ActorKind.PROP, "custom2", 6.0, 2.4, 2.6, 0.0, 1.0, 1.0, 0.0, colour=(60, 110, 160)
+        ),
     )
 }
 

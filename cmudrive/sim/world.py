@@ -264,8 +264,11 @@ class World:
             proj = self.map.index.nearest_lane(np.array([[x, y]]), heading=yaw)
             edge = str(self.map.edge_ids[self.map.lane_edge[max(int(proj.lane[0]), 0)]])
             libsumo.route.add(f"route:{actor_id}", [edge])
+            sumo_type = type_name
+            if not _allowed(edge, t.vclass):  # a scenario bicycle on a car-only road
+                sumo_type = _ignoring_type(type_name)
             libsumo.vehicle.add(
-                actor_id, f"route:{actor_id}", typeID=type_name, depart="now", departSpeed="0"
+                actor_id, f"route:{actor_id}", typeID=sumo_type, depart="now", departSpeed="0"
             )
             libsumo.vehicle.setSpeedMode(actor_id, 0)
             libsumo.vehicle.setLaneChangeMode(actor_id, 0)
@@ -492,3 +495,28 @@ class World:
             if info is None:
                 continue
             (libsumo.person if info.is_person else libsumo.vehicle).setSpeed(actor, speed)
+
+
+def _allowed(edge: str, vclass: str) -> bool:
+    """Some lane of ``edge`` lets ``vclass`` drive on it."""
+    import libsumo
+
+    lanes = libsumo.edge.getLaneNumber(edge)
+    for k in range(lanes):
+        lane = f"{edge}_{k}"
+        allowed = libsumo.lane.getAllowed(lane)
+        disallowed = libsumo.lane.getDisallowed(lane)
+        if (not allowed or vclass in allowed) and vclass not in disallowed:
+            return True
+    return False
+
+
+def _ignoring_type(type_name: str) -> str:
+    """A copy of a vehicle type with SUMO's vClass "ignoring" (allowed on every lane), made once."""
+    import libsumo
+
+    name = f"{type_name}@ignoring"
+    if name not in libsumo.vehicletype.getIDList():
+        libsumo.vehicletype.copy(type_name, name)
+        libsumo.vehicletype.setVehicleClass(name, "ignoring")
+    return name

@@ -1,0 +1,292 @@
+"""The scenario life cycle shared by every type: instantiate, activate, update, end, time out.
+
+A :class:`Scenario` is built at route setup from its ``<scenario>`` element (parameters parsed and checked,
+trigger point located on CAV 0's route, actors placed: errors name the route, scenario and parameter).
+Then, once per tick *before* the world ticks, :meth:`Scenario.step`:
+
+1. **instantiate** once CAV 0 is within ``instantiation_distance`` of the trigger along its route
+   (the "present from instantiation" actors appear: :meth:`Scenario.on_instantiate`);
+2. **activate** once CAV 0's matched route point is within ``activation_distance`` (2 m) of the trigger
+   (:meth:`Scenario.on_activate`); the blocked test of every *charged* CAV is suspended while the
+   scenario's timeout runs (the reference's ST240);
+3. **update** every tick (:meth:`Scenario.on_update` returns True when the scenario's own end holds);
+4. **end**, by its own condition or by the timeout: on timeout every charged CAV that is still running
+   and has not passed the scenario gets ``scenario_timeouts``; then :meth:`Scenario.on_end` cleans up
+   (the actors this scenario spawned are removed) and the blocked tests resume.
+
+*Charged* CAVs are those whose route passes within ``charge_distance`` of the trigger point (CAV 0
+always): they are the ones the scenario's own criteria judge. Collisions are charged to every CAV by the
+route criteria, with no scenario involved.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from enum import IntEnum
+from typing import ClassVar
+
+import numpy as np
+
+from cmudrive.bench.criteria import RouteCriteria
+from cmudrive.bench.routes import ScenarioSpec
+from cmudrive.bench.scenarios.params import Param, ScenarioError, parse_params
+from cmudrive.bench.scenarios.placement import LanePoint, walk
+from cmudrive.maps import RoadMap, Route
+from cmudrive.sim.dynamics import Controls
+from cmudrive.sim.snapshot import Role, Snapshot
+from cmudrive.sim.world import World
+
+PROGRESS_WINDOW = 30  # [route points] searched ahead of a CAV's last matched point per tick
+JUNCTION_SEARCH = 150.0  # [m] along CAV 0's route past T where the junction of a junction type must lie
+
+
+@dataclass(frozen=True)
+class ScenarioConfig:
+    """Engine constants (``reference/SCENARIOS.md``, "Scenario life cycle")."""
+
+    timeout: float = 240.0  # [s] ST240: the scenario's own timeout from activation
+    activation_distance: float = 2.0  # [m] CAV 0's matched route point this close to T activates it
+    instantiation_distance: float = 500.0  # [m] along CAV 0's route before T: present actors appear
+    charge_distance: float = 2.0  # [m] a route this close to T makes its CAV a charged one
+
+    def __post_init__(self) -> None:
+        for name in ("timeout", "activation_distance", "instantiation_distance", "charge_distance"):
+            value = getattr(self, name)
+            if not value > 0.0 or not math.isfinite(value):
+                raise ValueError(f"ScenarioConfig.{name} must be a positive number, got {value}")
+
+
+@dataclass
+class ScenarioContext:
+    """What a scenario acts on: the world, the map, the CAV routes, the criteria, one random stream."""
+
+    route_id: str
+    world: World
+    map: RoadMap
+    routes: list[Route]
+    criteria: RouteCriteria
+    rng: np.random.Generator
+    config: ScenarioConfig = field(default_factory=ScenarioConfig)
+
+
+class RouteProgress:
+    """Each CAV's matched point on its dense route (a forward search, as the route criteria do)."""
+
+    def __init__(self, routes: list[Route]) -> None:
+        self.routes = routes
+        self.index = np.zeros(len(routes), np.int64)
+        self.xy = np.array([r.xy[0] for r in routes], np.float64)  # (n, 2) last seen centre [m]
+        self.yaw = np.array([r.heading[0] for r in routes], np.float64)
+        self.speed = np.zeros(len(routes))
+        self.present = np.zeros(len(routes), bool)  # in the world at the last update
+
+    def update(self, snap: Snapshot) -> None:
+        rows, cav = snap.cav_rows()
+        self.present[:] = False
+        self.present[cav] = True
+        self.xy[cav] = np.column_stack([snap.x[rows], snap.y[rows]])
+        self.yaw[cav], self.speed[cav] = snap.yaw[rows], np.abs(snap.speed[rows])
+        for i in cav.tolist():
+            r, k = self.routes[i], int(self.index[i])
+            window = r.xy[k : k + PROGRESS_WINDOW]
+            self.index[i] = k + int(np.argmin(np.linalg.norm(window - self.xy[i], axis=1)))
+
+
+class Phase(IntEnum):
+    PENDING = 0
+    INSTANTIATED = 1
+    ACTIVE = 2
+    ENDED = 3
+
+
+class Scenario:
+    """Base of every scenario type. Subclasses set ``type_name``, ``params``, ``uses_timeout`` and
+    override the ``on_*`` hooks; actors go through :meth:`spawn` so that the end removes them."""
+
+    type_name: ClassVar[str] = ""
+    params: ClassVar[tuple[Param, ...]] = ()
+    uses_timeout: ClassVar[bool] = True  # the reference's ST240
+
+    def __init__(self, spec: ScenarioSpec, ctx: ScenarioContext) -> None:
+        self.spec, self.ctx = spec, ctx
+        self.p = parse_params(spec, ctx.route_id, self.params)
+        cfg, route = ctx.config, ctx.routes[0]
+        tx, ty, _ = spec.map_trigger()
+        self.trigger_xy = np.array([tx, ty])
+        gap = np.linalg.norm(route.xy - self.trigger_xy, axis=1)
+        near = np.flatnonzero(gap < cfg.activation_distance)
+        if len(near) == 0:
+            raise self.error(
+                f"trigger point (x={tx:.1f}, y={ty:.1f} in the map frame) is {gap.min():.1f} m from CAV 0's "
+                f"route; it must lie within {cfg.activation_distance:g} m of it"
+            )
+        self.trigger_index = int(near[np.argmin(gap[near])])
+        self.activation_index = int(near[0])  # the first route point within the activation distance
+        self.t_wp = LanePoint(int(route.lane[self.trigger_index]), float(route.s[self.trigger_index]))
+        self.route_lanes = frozenset(int(x) for x in route.path)
+        self.charged = np.array(
+            [np.min(np.linalg.norm(r.xy - self.trigger_xy, axis=1)) < cfg.charge_distance for r in ctx.routes]
+        )
+        self.charged[0] = True
+        self.passed = np.zeros(len(ctx.routes), bool)  # per CAV: has met the scenario's end condition
+        self.phase = Phase.PENDING
+        self.activated_at = math.nan  # [s] world time of activation
+        self.ended_by_timeout = False
+        self.actors: list[str] = []  # layer actors this scenario spawned (removed at the end)
+        self.place()
+
+    # ------------------------------------------------------------------ hooks for subclasses
+    def place(self) -> None:
+        """Compute the actors' places at setup (raise :meth:`error` when the map has no place)."""
+
+    def on_instantiate(self) -> None:
+        """Spawn the actors that are present from instantiation."""
+
+    def on_activate(self, snap: Snapshot) -> None:
+        """The behaviour starts."""
+
+    def on_update(self, snap: Snapshot, progress: RouteProgress) -> bool:
+        """One tick while active; True ends the scenario."""
+        return True
+
+    def on_end(self) -> None:
+        """Clean-up beyond removing the spawned actors (BA commands back to normal, ...)."""
+
+    def perturb(self, controls: Controls, cav: np.ndarray, progress: RouteProgress) -> Controls:
+        """Change the controls (n,) of the CAVs ``cav`` (n,) before the world applies them (ControlLoss);
+        called every tick while the scenario is active."""
+        return controls
+
+    # ------------------------------------------------------------------ shared tools
+    @property
+    def world(self) -> World:
+        return self.ctx.world
+
+    @property
+    def map(self) -> RoadMap:
+        return self.ctx.map
+
+    @property
+    def time(self) -> float:
+        return self.ctx.world.time
+
+    def num(self, name: str) -> float:
+        """A numeric parameter's value, in its own unit."""
+        value = self.p[name]
+        if not isinstance(value, float):
+            raise TypeError(f"parameter {name!r} of {self.type_name} is not a number: {value!r}")
+        return value
+
+    def span(self, name: str) -> tuple[float, ...]:
+        """A range parameter's (from, to), or a location parameter's CARLA-frame (x, y, z) [m]."""
+        value = self.p[name]
+        if not isinstance(value, tuple):
+            raise TypeError(f"parameter {name!r} of {self.type_name} is not a range or location: {value!r}")
+        return value
+
+    def error(self, problem: str) -> ScenarioError:
+        return ScenarioError(self.ctx.route_id, self.spec.name, problem)
+
+    def fwd(self, start: LanePoint, distance: float, what: str) -> LanePoint:
+        """fwd(distance) that refuses to stop short at a junction."""
+        stop = walk(self.map, start, distance, through_junctions=False, prefer=self.route_lanes)
+        through = walk(self.map, start, distance, through_junctions=True, prefer=self.route_lanes)
+        if stop != through:
+            raise self.error(
+                f"no place for the {what}: a junction lies less than {distance:g} m downstream of lane "
+                f"{self.map.lane_ids[start.lane]} at s={start.s:.1f} (the layout needs junction-free road)"
+            )
+        return stop
+
+    def junction_exit(self) -> tuple[int, int, float]:
+        """CAV 0's route indices of the last point before and the first point after its first junction past
+        T, and the turn angle [rad] (+ left) between them."""
+        route = self.ctx.routes[0]
+        k0 = self.trigger_index
+        inside = np.flatnonzero(route.in_junction[k0:]) + k0
+        if len(inside) == 0 or route.distance[inside[0]] - route.distance[k0] > JUNCTION_SEARCH:
+            raise self.error(
+                f"no place for the scenario: CAV 0's route has no junction within {JUNCTION_SEARCH:g} m of T"
+            )
+        first = int(inside[0])
+        after = np.flatnonzero(~route.in_junction[first:]) + first
+        if len(after) == 0:
+            raise self.error("no place for the scenario: CAV 0's route ends inside the junction")
+        last = int(after[0])
+        turn = (route.heading[last] - route.heading[first - 1] + math.pi) % (2 * math.pi) - math.pi
+        return first - 1, last, float(turn)
+
+    def route_point(self, k: int) -> LanePoint:
+        route = self.ctx.routes[0]
+        return LanePoint(int(route.lane[k]), float(route.s[k]))
+
+    def spawn(
+        self, suffix: str, type_name: str, xy: np.ndarray, yaw: float, speed: float = 0.0, prop: bool = False
+    ) -> str:
+        """A layer actor named ``<scenario>:<suffix>`` (Role.PROP for static props, else SCENARIO)."""
+        actor_id = f"{self.spec.name}:{suffix}"
+        role = Role.PROP if prop else Role.SCENARIO
+        self.world.add_layer_actor(actor_id, type_name, float(xy[0]), float(xy[1]), float(yaw), speed, role)
+        self.actors.append(actor_id)
+        return actor_id
+
+    def despawn(self, actor_id: str) -> None:
+        if actor_id in self.actors:
+            self.actors.remove(actor_id)
+            self.world.remove_layer_actor(actor_id)
+
+    def running_charged(self) -> np.ndarray:
+        """(n,) bool: charged CAVs whose evaluation is still running."""
+        return self.charged & ~self.ctx.criteria.finished()
+
+    # ------------------------------------------------------------------ the life cycle
+    def step(self, snap: Snapshot, progress: RouteProgress) -> None:
+        """One tick of the life cycle (called before the world ticks)."""
+        if self.phase == Phase.ENDED:
+            return
+        cfg, route = self.ctx.config, self.ctx.routes[0]
+        k = int(progress.index[0])
+        if self.phase == Phase.PENDING:
+            if route.distance[self.trigger_index] - route.distance[k] > cfg.instantiation_distance:
+                return
+            self.on_instantiate()
+            self.phase = Phase.INSTANTIATED
+        if self.phase == Phase.INSTANTIATED:
+            if k < self.activation_index or not progress.present[0]:
+                return
+            self.phase, self.activated_at = Phase.ACTIVE, self.time
+            self._suspend_blocked(True)
+            self.on_activate(snap)
+        done = self.on_update(snap, progress)
+        if not done and self.uses_timeout and self.time - self.activated_at >= cfg.timeout:
+            self._time_out(snap)
+            done = True
+        if done:
+            self.finish()
+
+    def finish(self) -> None:
+        """End now: clean up and resume the blocked tests (also at the end of the route)."""
+        if self.phase == Phase.ENDED:
+            return
+        was_active = self.phase == Phase.ACTIVE
+        self.phase = Phase.ENDED
+        if was_active:
+            self.on_end()
+            self._suspend_blocked(False)
+        for actor_id in list(self.actors):
+            self.despawn(actor_id)
+
+    def _time_out(self, snap: Snapshot) -> None:
+        self.ended_by_timeout = True
+        message = (
+            f"Scenario {self.spec.name} ({self.type_name}) timed out after {self.ctx.config.timeout:g} s"
+        )
+        for i in np.flatnonzero(self.running_charged() & ~self.passed).tolist():
+            self.ctx.criteria.record_scenario_timeout(i, int(snap.step), message)
+
+    def _suspend_blocked(self, suspended: bool) -> None:
+        if not self.uses_timeout:
+            return
+        for i in np.flatnonzero(self.charged).tolist():
+            self.ctx.criteria.suspend_blocked(i, suspended)

@@ -1,0 +1,142 @@
+"""Vehicle flows from a source to a sink (``reference/SCENARIOS.md``, "ActorFlow" and "OppositeFlow").
+
+A :class:`VehicleFlow` spawns SUMO cars at a source lane point whenever the car it spawned last has driven
+farther than the current gap g from it (g drawn again from U[from, to] after each spawn), drives them on
+SUMO's lane-level route to the sink, and removes each car once it is within ``SINK_RADIUS`` of the sink
+or has left the network; :meth:`VehicleFlow.stop` removes them all.
+
+Two behaviours (``imposed``):
+
+* ``ActorFlow`` (imposed): every car keeps the flow speed [m/s] set by ``setSpeed``, ignores red lights
+  and right of way, never changes lanes. Unlike CARLA's (which ignore vehicles until a first collision),
+  SUMO's safe-speed check stays on, so a flow car never drives through a car or CAV ahead of it.
+* ``OppositeFlow`` (not imposed): SUMO's own car-following, lights and right of way, capped at the flow
+  speed, no lane changes: the oncoming traffic of the *TwoWays scenarios.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cmudrive.bench.scenarios.placement import LanePoint, point_xy
+from cmudrive.maps import RoadMap
+from cmudrive.maps.routing import LanePos, RoutePlanner
+from cmudrive.sim.actor_types import ACTOR_TYPES
+from cmudrive.sim.snapshot import Role, Snapshot
+from cmudrive.sim.world import World
+
+SINK_RADIUS = 2.0  # [m] a car this close to the sink is removed
+FLOW_TYPE = "car"
+IMPOSED_SPEED_FACTOR = 3.0  # an ActorFlow car may drive this many times a lane's limit (its speed is imposed)
+
+
+class VehicleFlow:
+    """One flow of SUMO cars; :meth:`update` once per tick while it runs."""
+
+    def __init__(
+        self,
+        name: str,
+        world: World,
+        road_map: RoadMap,
+        source: LanePoint,
+        sink: LanePoint,
+        gap: tuple[float, ...],
+        speed: float,
+        rng: np.random.Generator,
+        imposed: bool,
+    ) -> None:
+        self.name, self.world, self.map = name, world, road_map
+        self.source, self.sink, self.gap_range, self.speed = source, sink, gap, float(speed)
+        self.rng, self.imposed = rng, imposed
+        path = RoutePlanner(road_map).plan_lanes(LanePos(source.lane, source.s), LanePos(sink.lane, sink.s))
+        self.path = path
+        self.path_length = path.length  # [m]
+        names = [
+            str(road_map.edge_ids[road_map.lane_edge[x]]) for x in path.path if not road_map.lane_internal[x]
+        ]
+        self.edges = [e for i, e in enumerate(names) if i == 0 or e != names[i - 1]]
+        self.sink_xy = point_xy(road_map, sink)
+        self.cars: list[str] = []
+        self.spawned = 0
+        self.gap = self._draw()
+
+    def _draw(self) -> float:
+        lo, hi = self.gap_range[0], self.gap_range[-1]
+        return float(self.rng.uniform(lo, hi))
+
+    def update(self, snap: Snapshot) -> None:
+        """Spawn at the source when the last car is a gap away; remove cars at the sink."""
+        import libsumo
+
+        sumo = self.world.sumo
+        rows = {str(a): i for i, a in enumerate(snap.ids.tolist()) if str(a).startswith(self.name)}
+        for car in list(self.cars):
+            r = rows.get(car)
+            gone = car not in sumo.actors
+            at_sink = (
+                r is not None
+                and np.hypot(snap.x[r] - self.sink_xy[0], snap.y[r] - self.sink_xy[1]) < SINK_RADIUS
+            )
+            if gone or at_sink:
+                sumo.remove(car)
+                self.cars.remove(car)
+        last = f"{self.name}:{self.spawned - 1}"
+        if self.spawned and last in self.cars:
+            try:
+                driven = float(libsumo.vehicle.getDistance(last))
+            except libsumo.TraCIException:  # not inserted yet
+                return
+            if driven < self.gap:
+                return
+        self._spawn()
+
+    def prefill(self) -> None:
+        """Cars every gap U[from, to] along the path from the source to ``SINK_RADIUS`` short of the sink,
+        the one nearest the source last (the next spawn waits for it). SUMO cannot insert a car on a
+        junction's internal lane: places inside a junction are skipped."""
+        m, path = self.map, self.path
+        places: list[int] = []
+        d = self.gap
+        while d < path.length - SINK_RADIUS - 0.5 * ACTOR_TYPES[FLOW_TYPE].length:
+            places.append(int(np.searchsorted(path.distance, d)))
+            d += self._draw()
+        for k in reversed(places):
+            lane = int(path.lane[k])
+            if m.lane_internal[lane]:
+                continue
+            edge = str(m.edge_ids[m.lane_edge[lane]])
+            self._spawn(LanePoint(lane, float(path.s[k])), self.edges[self.edges.index(edge) :])
+        self._spawn()
+
+    def _spawn(self, at: LanePoint | None = None, edges: list[str] | None = None) -> None:
+        car = f"{self.name}:{self.spawned}"
+        self.spawned += 1
+        half = 0.5 * ACTOR_TYPES[FLOW_TYPE].length
+        at = at or self.source
+        sumo = self.world.sumo
+        sumo.add_vehicle(
+            car, FLOW_TYPE, edges or self.edges, int(Role.SCENARIO),
+            depart_pos=min(at.s + half, float(self.map.lane_length[at.lane]) - 0.1),
+            depart_lane=int(self.map.lane_index[at.lane]), depart_speed=self.speed,
+        )  # fmt: skip
+        if self.imposed:
+            sumo.override(
+                car, ignore_lights=True, ignore_right_of_way=True, speed=self.speed, lane_changes=False
+            )
+            import libsumo
+
+            libsumo.vehicle.setSpeedFactor(
+                car, IMPOSED_SPEED_FACTOR
+            )  # lane limits must not cap the flow speed
+        else:
+            import libsumo
+
+            sumo.override(car, lane_changes=False)
+            libsumo.vehicle.setMaxSpeed(car, self.speed)
+        self.cars.append(car)
+        self.gap = self._draw()
+
+    def stop(self) -> None:
+        for car in self.cars:
+            self.world.sumo.remove(car)
+        self.cars.clear()

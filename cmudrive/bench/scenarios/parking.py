@@ -1,0 +1,102 @@
+"""Pulling out of a parking slot: ParkingExit (``reference/SCENARIOS.md`` #29).
+
+T is CAV 0's first route point. At instantiation CAV 0 is moved into the parking (or shoulder) lane on
+the ``direction`` side abreast T, pushed toward that lane's outer edge by (w_side - half-width)/4, facing
+along it; two cars are parked in the same lane (same edge offset) ``front_vehicle_distance`` m ahead and
+``behind_vehicle_distance`` m behind it, and a SUMO car stands in the driving lane beside it at T. At
+activation that car drives off under SUMO's own control and is removed once it drove 50 m. The scenario
+ends once CAV 0 drove ``front_vehicle_distance`` + 15 m along its route (or ST240); then the scenario's
+cars are removed. ``flow_distance`` (the reference's background spacing, ``RoadGap``) and ``speed`` are
+read and not applied.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import numpy as np
+
+from cmudrive.bench.scenarios.base import RouteProgress, Scenario
+from cmudrive.bench.scenarios.params import DIRECTION, Param
+from cmudrive.bench.scenarios.placement import LanePoint, heading, point_xy, side_sign, walk
+from cmudrive.maps.model import LaneKind
+from cmudrive.sim.actor_types import ACTOR_TYPES
+from cmudrive.sim.snapshot import Role, Snapshot
+
+BESIDE_DRIVE = 50.0  # [m] the car beside drives this far, then leaves
+AFTER_FRONT = 15.0  # [m] the scenario ends when CAV 0 drove front_vehicle_distance + this
+
+
+class ParkingExit(Scenario):
+    """#29: the CAV starts in a tight parking slot and must merge into traffic."""
+
+    type_name = "ParkingExit"
+    params: ClassVar[tuple[Param, ...]] = (
+        DIRECTION,
+        Param("front_vehicle_distance", "m", 20.0, lo=6.0, hi=100.0),
+        Param("behind_vehicle_distance", "m", 10.0, lo=6.0, hi=100.0),
+        Param("flow_distance", "m", 25.0, lo=0.0, hi=200.0),
+        Param("speed", "km/h", 60.0, lo=0.0, hi=130.0),
+    )
+
+    def place(self) -> None:
+        m, lane = self.map, self.t_wp.lane
+        if self.trigger_index > 2:
+            raise self.error("the trigger point must be CAV 0's first route point (it starts in the slot)")
+        direction = str(self.p["direction"])
+        k = int(m.lane_index[lane]) + (-1 if direction == "right" else 1)
+        side = np.flatnonzero((m.lane_edge == m.lane_edge[lane]) & (m.lane_index == k))
+        if len(side) != 1 or m.lane_kind[side[0]] not in (LaneKind.PARKING, LaneKind.SHOULDER):
+            raise self.error(
+                f"no place for the scenario: lane {m.lane_ids[lane]} has no parking or shoulder lane on "
+                f"its {direction}"
+            )
+        self.side = int(side[0])
+        w_side, half = float(m.lane_width[self.side]), 0.5 * ACTOR_TYPES["cav"].width
+        self.edge_offset = side_sign(direction) * (w_side - half) / 4.0  # toward the outer edge
+        s, _ = m.index.project(point_xy(m, self.t_wp)[None], np.array([self.side]))
+        self.slot = LanePoint(self.side, float(s[0]))
+        self.goal = float(self.ctx.routes[0].distance[self.trigger_index]) + self.num(
+            "front_vehicle_distance"
+        )
+        self.goal += AFTER_FRONT
+        self.beside = f"{self.spec.name}:beside"
+        self.beside_gone = False
+
+    def on_instantiate(self) -> None:
+        m, world = self.map, self.world
+        xy, yaw = point_xy(m, self.slot, self.edge_offset), heading(m, self.slot)
+        st = world.cav_state
+        st.x[0], st.y[0], st.yaw[0], st.speed[0] = xy[0], xy[1], yaw, 0.0  # CAV 0 into the slot
+        front, behind = self.num("front_vehicle_distance"), -self.num("behind_vehicle_distance")
+        for name, ahead in (("front", front), ("behind", behind)):
+            at = walk(m, self.slot, ahead, through_junctions=False)
+            self.spawn(name, "car", point_xy(m, at, self.edge_offset), heading(m, at))
+        route = self.ctx.routes[0]
+        names = [str(m.edge_ids[m.lane_edge[x]]) for x in route.path if not m.lane_internal[x]]
+        edges = [e for i, e in enumerate(names) if i == 0 or e != names[i - 1]]
+        pos = min(self.t_wp.s + 0.5 * ACTOR_TYPES["car"].length, float(m.lane_length[self.t_wp.lane]) - 0.1)
+        lane_index = int(m.lane_index[self.t_wp.lane])
+        world.sumo.add_vehicle(self.beside, "car", edges, int(Role.SCENARIO), pos, lane_index, 0.0)
+        world.sumo.override(self.beside, speed=0.0)  # waits for the activation
+
+    def on_activate(self, snap: Snapshot) -> None:
+        self.world.sumo.override(self.beside, speed=-1.0)  # drives off under SUMO's control
+
+    def on_update(self, snap: Snapshot, progress: RouteProgress) -> bool:
+        import libsumo
+
+        if not self.beside_gone:
+            try:
+                driven = float(libsumo.vehicle.getDistance(self.beside))
+            except libsumo.TraCIException:
+                driven = 0.0
+            if driven >= BESIDE_DRIVE or self.beside not in self.world.sumo.actors:
+                self.world.sumo.remove(self.beside)
+                self.beside_gone = True
+        self.passed[0] = float(self.ctx.routes[0].distance[progress.index[0]]) >= self.goal
+        self.passed[1:] = True  # only CAV 0 starts in the slot
+        return bool(self.passed[0]) or not bool(self.running_charged()[0])
+
+    def on_end(self) -> None:
+        self.world.sumo.remove(self.beside)

@@ -1,0 +1,168 @@
+"""The flow family (EnterActorFlow, HighwayExit, MergerIntoSlowTraffic(V2), InterurbanActorFlow) where a
+ramp joins a motorway, on our highway town and CARLA's Town06: SUMO cars run from start_actor_flow to
+end_actor_flow at flow_speed [m/s], the next leaving once the last drove a gap in source_dist_interval,
+pre-filled at activation where the type says so, removed at the sink; the scenario ends when CAV 0
+reached the sink (or left the junction)."""
+
+from __future__ import annotations
+
+import itertools
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cmudrive.bench import RouteSpec
+from cmudrive.maps import load_map
+from cmudrive.maps.coords import map_to_carla
+from tests.scenario_helpers import cav_track, path_cav, run, scenario, track, trigger
+
+# town, ramp lane (CAV 0), s on it (start, trigger), main lane (flow source) and s, exit lane (sink) and s
+HW = ("S_entry1-EB_merge1_0", "EB_gore1-EB_merge1_0", "EB_merge1-EB_gore2_1")
+SCENES = {
+    "highway": (HW[0], 250.0, 270.0, HW[1], 520.0, HW[2], 150.0),
+    "Town06": ("75_2", 2.0, 10.0, "-42_3", 30.0, "-43_3", 150.0),
+}  # fmt: skip
+SPEED, GAP = 12.0, (20.0, 30.0)
+
+
+def flow_route(town: str, kind: str) -> tuple[RouteSpec, np.ndarray]:
+    m = load_map(town)
+    ramp, s0, t_s, main, s_src, out, s_dst = SCENES[town]
+    r, o = m.lane(ramp), m.lane(out)
+    xy = np.array(
+        [
+            m.index.frenet_to_xy(np.array([r]), np.array([s0]))[0],
+            m.index.frenet_to_xy(np.array([r]), np.array([m.lane_length[r] - 2.0]))[0],
+            m.index.frenet_to_xy(np.array([o]), np.array([s_dst + 50.0]))[0],
+        ]
+    )
+    src = m.index.frenet_to_xy(np.array([m.lane(main)]), np.array([s_src]))[0]
+    dst = m.index.frenet_to_xy(np.array([o]), np.array([s_dst]))[0]
+
+    def loc(p: np.ndarray) -> dict[str, str]:
+        c = map_to_carla(p[None])[0]
+        return {"x": str(c[0]), "y": str(c[1]), "z": "0"}
+
+    gap = {"from": str(GAP[0]), "to": str(GAP[1])}
+    sc = scenario(kind, trigger(m, ramp, t_s), start_actor_flow=loc(src), end_actor_flow=loc(dst),
+                  flow_speed=str(SPEED), source_dist_interval=gap)  # fmt: skip
+    return RouteSpec(f"{kind}_{town}", town, "ClearNoon", 0, (path_cav(m, 0, xy),), (sc,)), dst
+
+
+@pytest.mark.parametrize("town", ["highway", "Town06"])
+@pytest.mark.parametrize(
+    "kind",
+    [
+        "MergerIntoSlowTraffic",
+        "MergerIntoSlowTrafficV2",
+        "EnterActorFlow",
+        "HighwayExit",
+        "InterurbanActorFlow",
+    ],
+)
+def test_flow_cars_run_source_to_sink_at_flow_speed(kind: str, town: str, tmp_path: Path) -> None:
+    spec, _ = flow_route(town, kind)
+    result, log = run(spec, tmp_path)
+    assert result.scenario_simulated is True
+    cars = sorted(
+        {a for a in log.arrays["actor_id"].tolist() if a.startswith("S1:flow0:")}, key=lambda a: int(a[9:])
+    )
+    assert len(cars) >= 3
+    tracks = {c: track(log, c) for c in cars}
+    first = {c: int(np.flatnonzero(~np.isnan(t[:, 0]))[0]) for c, t in tracks.items()}
+    last = {c: int(np.flatnonzero(~np.isnan(t[:, 0]))[-1]) for c, t in tracks.items()}
+    activation = min(first.values())
+    prefilled = [c for c in cars if first[c] == activation]
+    if kind in ("InterurbanActorFlow",):
+        assert len(prefilled) == 1  # only the car at the source
+    else:
+        assert len(prefilled) >= 3  # cars all along the path at once
+    end = max(last.values())
+    speeds = np.concatenate([t[first[c] : last[c] + 1, 3] for c, t in tracks.items()])
+    assert np.median(speeds) == pytest.approx(SPEED, abs=0.05)  # imposed speed ...
+    assert speeds.max() <= SPEED + 0.05  # ... which SUMO's safe-speed check may only lower (behind a CAV)
+    m = load_map(town)
+    out = m.lane(SCENES[town][5])
+    for c, t in tracks.items():
+        if last[c] < end:  # left before the scenario ended: at its sink (abreast the given one)
+            s, _ = m.index.project(t[last[c], :2][None], np.array([out]))
+            assert SCENES[town][6] - 2.0 - SPEED * 0.05 - 0.1 < s[0] < SCENES[town][6] + 0.1, c
+    spawned = [c for c in cars if first[c] > activation]  # from the source, one after another
+    order = [c for c in cars if c in spawned or c == prefilled[-1]]
+    for a, b in itertools.pairwise(order):
+        driven = np.linalg.norm(tracks[a][first[b], :2] - tracks[a][first[a], :2])
+        assert GAP[0] - 1.0 <= driven <= GAP[1] + SPEED * 0.1 + 1.0, (a, b, driven)
+    if kind == "EnterActorFlow":  # a flow on every lane of the main road that continues to the sink road
+        assert {a.split(":")[1] for a in log.arrays["actor_id"].tolist() if a.startswith("S1:flow")} >= {
+            "flow0", "flow1"
+        }  # fmt: skip
+    cav = cav_track(log, 0)
+    if kind.startswith("Merger") or kind == "EnterActorFlow":  # ends when CAV 0 reached the sink
+        s_cav, _ = m.index.project(cav[end + 1, :2][None], np.array([out]))
+        assert s_cav[0] >= SCENES[town][6] - 2.0 - 1.5
+    else:  # ends when CAV 0 left the junction (the merge)
+        route = spec.dense_routes(m)[0]
+        inside = np.flatnonzero(route.in_junction)
+        exit_k = int(inside[0]) + int(np.flatnonzero(~route.in_junction[inside[0] :])[0])
+        k = int(np.argmin(np.linalg.norm(route.xy - cav[end + 1, :2], axis=1)))
+        assert route.distance[exit_k] - 1.5 <= route.distance[k] <= route.distance[exit_k] + 2.0
+
+
+@pytest.mark.parametrize(
+    ("town", "a", "b"), [("suburb", "J1_1-J0_1_1", "J0_1-J0_0_2"), ("Town01", "-24_2", "-6_2")]
+)
+def test_interurban_advanced_two_flows_on_both_carriageways(
+    town: str, a: str, b: str, tmp_path: Path
+) -> None:
+    """CAV 0 turns left across flow 1 (the near carriageway, from its left) into flow 2 (the far one,
+    the oncoming lanes beside flow 1's sink and source); the scenario ends when CAV 0 reached flow 2's
+    sink."""
+    from cmudrive.maps.model import TurnDir
+
+    m = load_map(town)
+    ia, ib = m.lane(a), m.lane(b)
+    j = int(m.lane_junction[m.successors(ia)[0]])
+
+    def end_heading(lane: int) -> float:
+        p = m.polyline(lane)
+        return float(np.arctan2(*(p[-1] - p[-2])[::-1]))
+
+    driving = (m.lane_kind[m.link_from] == 0) & ~m.lane_internal[m.link_from]
+    links = np.flatnonzero((m.link_junction == j) & (m.link_dir == TurnDir.STRAIGHT) & driving)
+    left = [
+        k for k in links
+        if abs(np.angle(np.exp(1j * (end_heading(int(m.link_from[k])) - end_heading(ia) + np.pi / 2)))) < 0.6
+    ]  # fmt: skip
+    src_lane, dst_lane = int(m.link_from[left[0]]), int(m.link_to[left[0]])
+    src_s, dst_s = max(1.0, m.lane_length[src_lane] - 60.0), min(50.0, m.lane_length[dst_lane] - 5.0)
+    xy = np.array(
+        [
+            m.index.frenet_to_xy(np.array([ia]), np.array([max(2.0, m.lane_length[ia] - 50.0)]))[0],
+            m.index.frenet_to_xy(np.array([ia]), np.array([m.lane_length[ia] - 2.0]))[0],
+            m.index.frenet_to_xy(np.array([ib]), np.array([min(90.0, m.lane_length[ib] - 5.0)]))[0],
+        ]
+    )
+
+    def loc(lane: int, s: float) -> dict[str, str]:
+        c = map_to_carla(m.index.frenet_to_xy(np.array([lane]), np.array([s])))[0]
+        return {"x": str(c[0]), "y": str(c[1]), "z": "0"}
+
+    sc = scenario(
+        "InterurbanAdvancedActorFlow", trigger(m, a, max(3.0, m.lane_length[ia] - 40.0)),
+        start_actor_flow=loc(src_lane, src_s), end_actor_flow=loc(dst_lane, dst_s), flow_speed="10",
+        source_dist_interval={"from": "20", "to": "30"},
+    )  # fmt: skip
+    spec = RouteSpec(f"iaaf_{town}", town, "ClearNoon", 0, (path_cav(m, 0, xy),), (sc,))
+    result, log = run(spec, tmp_path)
+    assert result.scenario_simulated is True
+    ids = {x for x in log.arrays["actor_id"].tolist() if x.startswith("S1:flow")}
+    one, two = track(log, "S1:flow0:0"), track(log, "S1:flow1:0")
+    r1, r2 = np.flatnonzero(~np.isnan(one[:, 0])), np.flatnonzero(~np.isnan(two[:, 0]))
+    assert {x.split(":")[1] for x in ids} == {"flow0", "flow1"}
+    assert abs(np.angle(np.exp(1j * (one[r1[5], 2] - two[r2[5], 2])))) > 2.5  # opposite directions
+    _, d = m.index.project(two[r2[5], :2][None], np.array([int(m.lane_opposite[src_lane])]))
+    assert abs(d[0]) < 0.3  # flow 2 on the lane beside flow 1's source (CAV 0's target road)
+    end = max(int(np.flatnonzero(~np.isnan(track(log, x)[:, 0]))[-1]) for x in ids)
+    sink2 = m.index.frenet_to_xy(np.array([src_lane]), np.array([src_s]))[0]
+    assert np.linalg.norm(cav_track(log, 0)[end + 1, :2] - sink2) < 3.5 + 4.0  # CAV 0 reached flow 2's sink
