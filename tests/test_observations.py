@@ -139,3 +139,16 @@ def test_sensor_demo_video_shows_camera_occupancy_and_bev(tmp_path) -> None:
     height, width = frames.shape[1:3]
     # camera (2:1) + two occupancy panels (2:3) + the square BEV window, side by side
     assert width > 3.5 * height
+
+
+class NamesNonsense(Cooperative):
+    def next_partners(self) -> np.ndarray | None:
+        return np.full(self._n, 0.5)  # not CAV indices
+
+
+def test_partners_that_are_not_cav_indices_are_the_agents_crash() -> None:
+    from cmudrive.bench.records import STATUS_AGENT_CRASHED
+
+    result = evaluate_route(ring_route(), NamesNonsense, EvalConfig(tick_cap=10, background=TRAFFIC))
+    assert result.status == STATUS_AGENT_CRASHED
+    assert result.error is not None and "next_partners returned float64" in result.error
