@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from cmudrive.bench.scenarios.placement import LanePoint, point_xy
-from cmudrive.maps import RoadMap
+from cmudrive.maps import RoadMap, Route
 from cmudrive.maps.routing import LanePos, RoutePlanner
 from cmudrive.sim.actor_types import ACTOR_TYPES
 from cmudrive.sim.snapshot import Role, Snapshot
@@ -30,13 +30,18 @@ FLOW_TYPE = "car"
 IMPOSED_SPEED_FACTOR = 3.0  # an ActorFlow car may drive this many times a lane's limit (its speed is imposed)
 
 
+def flow_path(road_map: RoadMap, source: LanePoint, sink: LanePoint) -> Route:
+    """The lane-level path a flow's cars drive from ``source`` to ``sink`` (RouteError when none)."""
+    return RoutePlanner(road_map).plan_lanes(LanePos(source.lane, source.s), LanePos(sink.lane, sink.s))
+
+
 class VehicleFlow:
     """One flow of SUMO cars; :meth:`update` once per tick while it runs."""
 
     def __init__(
         self,
         name: str,
-        world: World,
+        world: World | None,
         road_map: RoadMap,
         source: LanePoint,
         sink: LanePoint,
@@ -45,10 +50,10 @@ class VehicleFlow:
         rng: np.random.Generator,
         imposed: bool,
     ) -> None:
-        self.name, self.world, self.map = name, world, road_map
+        self.name, self._world, self.map = name, world, road_map
         self.source, self.sink, self.gap_range, self.speed = source, sink, gap, float(speed)
         self.rng, self.imposed = rng, imposed
-        path = RoutePlanner(road_map).plan_lanes(LanePos(source.lane, source.s), LanePos(sink.lane, sink.s))
+        path = flow_path(road_map, source, sink)
         self.path = path
         self.path_length = path.length  # [m]
         names = [
@@ -59,6 +64,12 @@ class VehicleFlow:
         self.cars: list[str] = []
         self.spawned = 0
         self.gap = self._draw()
+
+    @property
+    def world(self) -> World:
+        if self._world is None:
+            raise RuntimeError(f"flow {self.name} was built for its plan only: it has no world")
+        return self._world
 
     def _draw(self) -> float:
         lo, hi = self.gap_range[0], self.gap_range[-1]
