@@ -23,6 +23,7 @@ from cmudrive.bench.scenarios.actorflows import (
 )
 from cmudrive.bench.scenarios.adversaries import OppositeVehicleRunningRedLight, OppositeVehicleTakingPriority
 from cmudrive.bench.scenarios.base import Phase, RouteProgress, Scenario, ScenarioConfig, ScenarioContext
+from cmudrive.bench.scenarios.bicycles import CrossingBicycleFlow
 from cmudrive.bench.scenarios.crossings import (
     DynamicObjectCrossing,
     ParkingCrossingPedestrian,
@@ -115,6 +116,7 @@ REGISTRY: dict[str, type[Scenario]] = {
         InvadingTurn,
         ParkingExit,
         InterurbanAdvancedActorFlow,
+        CrossingBicycleFlow,
     )
 }
 
