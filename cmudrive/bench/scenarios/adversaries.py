@@ -66,6 +66,11 @@ class OppositeVehicle(Scenario):
         route = self.ctx.routes[0]
         self.ego_lane = int(route.lane[before])
         self.junction = int(m.lane_junction[route.lane[before + 1]])
+        if self.red_light and not np.any((m.link_from == self.ego_lane) & (m.link_tls >= 0)):
+            raise self.error(
+                f"no place for the scenario: CAV 0 enters its junction from lane "
+                f"{m.lane_ids[self.ego_lane]}, which has no traffic light (the red-light runner needs one)"
+            )
         entering = ~m.lane_internal[m.link_from] & (m.lane_kind[m.link_from] == LaneKind.DRIVING)
         links = np.flatnonzero(
             (m.link_junction == self.junction) & entering & (m.link_dir == TurnDir.STRAIGHT)
