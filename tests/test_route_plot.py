@@ -109,3 +109,46 @@ def test_routes_show_writes_a_png(tmp_path: Path) -> None:
     missing = CliRunner().invoke(app, ["routes", "show", str(path), "nope", "-o", str(out)])
     assert missing.exit_code == 1
     assert "no route 'nope'" in missing.output
+
+
+def test_two_ways_plan_runs_the_oncoming_flow_against_the_cav() -> None:
+    """AccidentTwoWays (downtown, one lane each way, speed limit v): the OppositeFlow path lies on the
+    oncoming lane and runs against CAV 0, from 1.5 v[km/h] + 30 m before the point beside the last car."""
+    m = load_map("downtown")
+    lane = "J0_0-J0_1_2"
+    i = m.lane(lane)
+    gap = {"from": "20", "to": "40"}
+    sc_spec = scenario("AccidentTwoWays", trigger(m, lane, 20.0), distance="40", frequency=gap)
+    cavs = (lane_cav(m, 0, lane, 5.0, min(200.0, m.lane_length[i] - 3.0)),)
+    spec = RouteSpec("two", "downtown", "ClearNoon", 0, cavs, (sc_spec,))
+    _, sc = planned(spec)
+    (flow,) = [it for it in sc.plan() if isinstance(it, PlanPath)]
+    opposite = str(m.lane_ids[m.lane_opposite[i]])
+    s, d = frenet(m, opposite, flow.xy)
+    inside = (s > 0.5) & (s < m.lane_length[m.lane_opposite[i]] - 0.5)
+    assert np.all(np.abs(d[inside]) < 0.1)  # on the oncoming lane's centreline
+    assert np.all(np.diff(s[inside]) > 0)  # in its direction: against CAV 0
+    s_ego, _ = frenet(m, lane, flow.xy[[0, -1]])
+    assert s_ego[0] > s_ego[1]
+
+
+def test_cyclists_ride_and_control_loss_patches_are_planned_where_placed() -> None:
+    """HazardAtSideLane: each bicycle's ride is bicycle_drive_distance long from its start; ControlLoss: the
+    patches 14, 48 and 74 m past T on CAV 0's lane."""
+    m = load_map("interurban")
+    lane = "R1a-R2a_0"
+    cavs = (lane_cav(m, 0, lane, 20.0, 300.0),)
+    hazard = scenario("HazardAtSideLane", trigger(m, lane, T_S), distance="40", bicycle_drive_distance="30")
+    _, sc = planned(RouteSpec("h", "interurban", "ClearNoon", 0, cavs, (hazard,)))
+    rides = [it for it in sc.plan() if isinstance(it, PlanPath)]
+    bikes = points(sc, "bicycle")
+    assert [r.kind for r in rides] == ["ride", "ride"]
+    for ride, bike in zip(rides, bikes, strict=True):
+        assert np.linalg.norm(ride.xy[0] - bike.xy) < 0.05
+        assert np.sum(np.linalg.norm(np.diff(ride.xy, axis=0), axis=1)) == pytest.approx(30.0, abs=0.5)
+    _, sc = planned(
+        RouteSpec("c", "interurban", "ClearNoon", 0, cavs, (scenario("ControlLoss", trigger(m, lane, T_S)),))
+    )
+    s, d = frenet(m, lane, np.array([p.xy for p in points(sc, "patch")]))
+    assert s - T_S == pytest.approx([14.0, 48.0, 74.0], abs=0.1)
+    assert np.all(np.abs(d) < 0.05)
