@@ -112,10 +112,9 @@ def draw_plan(ax: Axes, items: list[PlanItem]) -> list[str]:
     return kinds
 
 
-def _legend(kinds: list[str], paths: set[str]) -> list[Line2D]:
-    handles = [
-        Line2D([], [], marker="*", ls="", ms=13, mfc=TRIGGER_COLOUR, mec="black", label="trigger point")
-    ]
+def _legend(kinds: list[str], paths: set[str], trigger: bool) -> list[Line2D]:
+    star = Line2D([], [], marker="*", ls="", ms=13, mfc=TRIGGER_COLOUR, mec="black", label="trigger point")
+    handles = [star] if trigger else []
     for kind in kinds:
         if kind in paths:
             colour = PATH_COLOURS.get(kind, ACTOR_COLOUR)
@@ -174,7 +173,9 @@ def draw_route_plan(ax: Axes, m: RoadMap, spec: RouteSpec, routes: list[Route], 
     window = _window(routes, items, trigger)
     ax.set_xlim(window[0, 0], window[1, 0])
     ax.set_ylim(window[0, 1], window[1, 1])
-    ax.legend(handles=_legend(kinds, paths), loc="upper right", fontsize=7, framealpha=0.9)
+    handles = _legend(kinds, paths, trigger is not None)
+    if handles:
+        ax.legend(handles=handles, loc="upper right", fontsize=7, framealpha=0.9)
     kind = spec.scenarios[0].type if spec.scenarios else "no scenario"
     note = "" if manager.simulated is not False else " (not simulated)"
     ax.set_title(f"route {spec.id}: {kind}{note} on {m.name}, {len(routes)} CAVs", fontsize=10)
