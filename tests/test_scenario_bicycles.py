@@ -11,11 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cmudrive.bench import EvalConfig
 from cmudrive.bench.routes import RouteSpec
 from cmudrive.bench.scenarios import PlanPath, Scenario, ScenarioError, plan_scenarios
 from cmudrive.maps import LaneKind, RoadMap, load_map
 from cmudrive.maps.coords import map_to_carla
-from tests.scenario_helpers import path_cav, run, scenario, track, trigger
+from tests.scenario_helpers import EMPTY, path_cav, run, scenario, track, trigger
 
 APPROACH, LEFT_EXIT, BIKE_LANE = "J0_2-J1_2_2", "J1_2-J1_3_2", "J2_2-J1_2_1"  # downtown
 SPEED, GAP = 8.0, (10.0, 20.0)  # [m/s], [m]
@@ -138,3 +139,35 @@ def test_a_town_without_bike_lanes_is_a_clear_placement_error() -> None:
     message = str(err.value)
     assert message.startswith("route 'r_town03', scenario 'S1': ")
     assert "map 'Town03' has no bike lane" in message
+
+
+def test_a_car_sumo_discards_at_insertion_leaves_the_flow(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Without the stop-capable departure speed, SUMO discards a bicycle pre-filled a few metres before the
+    red line ("will not be able to depart") and never reports it as arrived: the flow forgets it at its next
+    update instead of keeping a ghost (which, as its last car, would stop the flow for good)."""
+    import libsumo
+
+    from cmudrive.bench.scenarios import flows
+
+    original_init, original_update = flows.VehicleFlow.__init__, flows.VehicleFlow.update
+    ghosts: list[list[str]] = []
+
+    def init(self: flows.VehicleFlow, *args: object, **kwargs: object) -> None:
+        kwargs["red_ahead"] = False
+        original_init(self, *args, **kwargs)  # type: ignore[arg-type]
+
+    def update(self: flows.VehicleFlow, snap: object) -> None:
+        original_update(self, snap)  # type: ignore[arg-type]
+        known = set(libsumo.vehicle.getIDList()) | set(libsumo.simulation.getPendingVehicles())
+        ghosts.append([c for c in self.cars if c not in known and self.born[c] < self.world.step_count])
+
+    monkeypatch.setattr(flows.VehicleFlow, "__init__", init)
+    monkeypatch.setattr(flows.VehicleFlow, "update", update)
+    _, spec, _ = downtown()
+    _, log = run(spec, tmp_path, config=EvalConfig(background=EMPTY, tick_cap=200))
+    seen = {a for a in log.arrays["actor_id"].tolist() if a.startswith("S1:bikes:")}
+    spawned = max(int(a[9:]) for a in seen) + 1
+    assert len(seen) < spawned  # a bicycle never made it into the world: SUMO discarded it
+    assert ghosts and not any(ghosts)  # the flow never held on to it after a SUMO step

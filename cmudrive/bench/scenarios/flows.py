@@ -73,6 +73,7 @@ class VehicleFlow:
         self.edges = [e for i, e in enumerate(names) if i == 0 or e != names[i - 1]]
         self.sink_xy = point_xy(road_map, sink)
         self.cars: list[str] = []
+        self.born: dict[str, int] = {}  # car -> world step count when it was added
         self.spawned = 0
         self.gap = self._draw()
 
@@ -92,9 +93,13 @@ class VehicleFlow:
 
         sumo = self.world.sumo
         rows = {str(a): i for i, a in enumerate(snap.ids.tolist()) if str(a).startswith(self.name)}
+        # a car SUMO discarded at insertion (it could not depart, e.g. too fast before a red line) is neither
+        # running nor pending, and never reported as arrived: drop it, or the flow would wait for it forever
+        known = set(libsumo.vehicle.getIDList()) | set(libsumo.simulation.getPendingVehicles())
         for car in list(self.cars):
             r = rows.get(car)
-            gone = car not in sumo.actors
+            stepped = self.world.step_count > self.born.get(car, self.world.step_count)  # SUMO tried it
+            gone = car not in sumo.actors or (stepped and car not in known)
             at_sink = (
                 r is not None
                 and np.hypot(snap.x[r] - self.sink_xy[0], snap.y[r] - self.sink_xy[1]) < SINK_RADIUS
@@ -102,6 +107,7 @@ class VehicleFlow:
             if gone or at_sink:
                 sumo.remove(car)
                 self.cars.remove(car)
+                self.born.pop(car, None)
         last = f"{self.name}:{self.spawned - 1}"
         if self.spawned and last in self.cars:
             try:
@@ -166,6 +172,7 @@ class VehicleFlow:
             sumo.override(car, lane_changes=False)
             libsumo.vehicle.setMaxSpeed(car, self.speed)
         self.cars.append(car)
+        self.born[car] = self.world.step_count
         self.gap = self._draw()
 
     def stop(self) -> None:
