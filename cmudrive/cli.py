@@ -281,6 +281,29 @@ def routes_import(
     console.print(f"wrote {len(result.routes)} routes to {output} ({len(result.skipped)} skipped)")
 
 
+@routes_app.command("show")
+def routes_show(
+    file: Annotated[str, typer.Argument(help="route file (.xml) or the name of a committed one")],
+    route_id: Annotated[str, typer.Argument(help="id of the route to draw")],
+    output: Annotated[Path, typer.Option("-o", "--output", help="PNG to write")] = Path("route.png"),
+) -> None:
+    """Draw one route: the map around it, each CAV's path, the trigger and the scenario's planned actors."""
+    from cmudrive.bench.routes import read_routes
+    from cmudrive.bench.scenarios import ScenarioError
+    from cmudrive.viz.route_plot import save_route_figure
+
+    try:
+        specs = read_routes(_routes_path(file), min_cavs=1)
+        spec = next((s for s in specs if s.id == route_id), None)
+        if spec is None:
+            known = ", ".join(s.id for s in specs[:10]) + (", ..." if len(specs) > 10 else "")
+            raise ValueError(f"{file} has no route {route_id!r} (routes: {known})")
+        path = save_route_figure(spec, output)
+    except (OSError, ValueError, MapError, ScenarioError) as exc:
+        _fail(exc)
+    console.print(f"wrote {path}")
+
+
 def _routes_path(name_or_path: str) -> Path:
     path = Path(name_or_path)
     if path.suffix == ".xml" or path.exists():

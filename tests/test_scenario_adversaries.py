@@ -80,3 +80,17 @@ def test_emergency_vehicle_crosses_the_cav_path(
         states = [str(log.tls_state(i)[light]) for i in range(first + 1, rows[-1])]
         assert {st[k] for st in states} == {"G"}  # CAV 0 has green all along
         assert all(set(st) - {"G", "g"} for st in states)  # and the others red
+
+
+def test_red_light_runner_needs_a_signalised_junction() -> None:
+    """Downtown's J0_2 has stop signs, no light: the red-light variant is refused at setup (it would force
+    no light), the taking-priority variant is placed there."""
+    from cmudrive.bench.scenarios import ScenarioError, plan_scenarios
+
+    m = load_map("downtown")
+    a, b = "J1_2-J0_2_2", "J0_2-J0_1_2"
+    spec = route(m, "OppositeVehicleRunningRedLight", a, b, "right")
+    with pytest.raises(ScenarioError, match="which has no traffic light"):
+        plan_scenarios(spec, m, spec.dense_routes(m))
+    spec = route(m, "OppositeVehicleTakingPriority", a, b, "right")
+    assert plan_scenarios(spec, m, spec.dense_routes(m)).scenarios

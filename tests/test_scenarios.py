@@ -104,7 +104,13 @@ def test_a_bad_scenario_does_not_stop_the_other_routes(tmp_path: Path) -> None:
     assert by_id["good"]["status"] != STATUS_SIM_CRASHED and by_id["good"]["scenario_simulated"] is True
 
 
-def test_unimplemented_types_are_reported_not_simulated(tmp_path: Path) -> None:
+def test_unimplemented_types_are_reported_not_simulated(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A type without behaviour (every type has one now: one is taken out of the registry) still runs."""
+    from cmudrive.bench.scenarios import REGISTRY
+
+    monkeypatch.delitem(REGISTRY, "CrossingBicycleFlow")
     result, _ = run(
         ring_spec("vanilla", kind="CrossingBicycleFlow"),
         tmp_path,

@@ -109,10 +109,17 @@ class _Piece:
 class RoutePlanner:
     """Plans lane-level routes on a :class:`RoadMap`."""
 
-    def __init__(self, road_map: RoadMap, lane_change_penalty: float = LANE_CHANGE_PENALTY) -> None:
+    def __init__(
+        self,
+        road_map: RoadMap,
+        lane_change_penalty: float = LANE_CHANGE_PENALTY,
+        lanes: np.ndarray | None = None,
+    ) -> None:
+        """``lanes``: (N,) bool mask of the lanes routes may use (default: the driving lanes; a bicycle
+        flow plans on the bike lanes)."""
         self.map = road_map
         self.penalty = lane_change_penalty
-        self._driving = road_map.driving
+        self._driving = road_map.driving if lanes is None else np.asarray(lanes, bool)
         # the option of every (internal) lane, from the turn direction of the link that leads into it
         option = np.full(road_map.num_lanes, RoadOption.LANEFOLLOW, np.int8)
         for lane in np.flatnonzero(road_map.lane_internal & self._driving):

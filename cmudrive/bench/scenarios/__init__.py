@@ -6,12 +6,16 @@ placement along lanes in ``placement``, parameters and their errors in ``params`
 """
 
 from cmudrive.bench.scenarios.base import RouteProgress, Scenario, ScenarioConfig, ScenarioContext
-from cmudrive.bench.scenarios.manager import REGISTRY, ScenarioManager, build_scenarios
+from cmudrive.bench.scenarios.manager import REGISTRY, ScenarioManager, build_scenarios, plan_scenarios
 from cmudrive.bench.scenarios.params import Param, ScenarioError
+from cmudrive.bench.scenarios.plan import PlanItem, PlanPath, PlanPoint
 
 __all__ = [
     "REGISTRY",
     "Param",
+    "PlanItem",
+    "PlanPath",
+    "PlanPoint",
     "RouteProgress",
     "Scenario",
     "ScenarioConfig",
@@ -19,4 +23,5 @@ __all__ = [
     "ScenarioError",
     "ScenarioManager",
     "build_scenarios",
+    "plan_scenarios",
 ]

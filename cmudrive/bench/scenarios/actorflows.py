@@ -32,6 +32,7 @@ from cmudrive.bench.scenarios.flows import VehicleFlow
 from cmudrive.bench.scenarios.junctions import exit_distance
 from cmudrive.bench.scenarios.params import Param
 from cmudrive.bench.scenarios.placement import LanePoint, heading, point_xy
+from cmudrive.bench.scenarios.plan import PlanItem, path
 from cmudrive.maps import RouteError
 from cmudrive.maps.coords import carla_to_map
 from cmudrive.maps.model import LaneKind
@@ -79,7 +80,7 @@ class ActorFlowScenario(Scenario):
             name = f"{self.spec.name}:flow{k}"
             try:
                 self.flows.append(
-                    VehicleFlow(name, self.world, self.map, a, b, gap, speed, self.ctx.rng, True)
+                    VehicleFlow(name, self.ctx.world, self.map, a, b, gap, speed, self.ctx.rng, True)
                 )
             except RouteError as exc:  # EnterActorFlow: a lane pair with no path is left out
                 if k == 0 or not self.all_lanes:
@@ -90,6 +91,9 @@ class ActorFlowScenario(Scenario):
             self.goal[i] = exit_distance(r.xy, r.in_junction, r.distance, k0)
         if not self.end_at_sink and not np.isfinite(self.goal[0]):
             raise self.error("no place for the scenario: CAV 0's route meets no junction after T")
+
+    def plan(self) -> list[PlanItem]:
+        return [path("flow", flow.path.xy) for flow in self.flows]
 
     def _pairs(self, source: LanePoint, sink: LanePoint) -> list[tuple[LanePoint, LanePoint]]:
         """Same-direction lanes of the source and sink roads, aligned on the given lanes."""
@@ -218,7 +222,7 @@ class InterurbanAdvancedActorFlow(ActorFlowScenario):
         gap, speed = self.span("source_dist_interval"), self.num("flow_speed")
         try:
             self.flows.append(
-                VehicleFlow(name, self.world, m, beside[0], beside[1], gap, speed, self.ctx.rng, True)
+                VehicleFlow(name, self.ctx.world, m, beside[0], beside[1], gap, speed, self.ctx.rng, True)
             )
         except RouteError as exc:
             raise self.error(f"no lane path for flow 2: {exc}") from None

@@ -26,6 +26,7 @@ from cmudrive.bench.scenarios.behaviours import time_to_arrival
 from cmudrive.bench.scenarios.junctions import exit_distance
 from cmudrive.bench.scenarios.params import Param
 from cmudrive.bench.scenarios.placement import LanePoint, point_xy, walk
+from cmudrive.bench.scenarios.plan import PlanItem, path, point
 from cmudrive.maps import RoadMap, RouteError
 from cmudrive.maps.model import LaneKind, TurnDir
 from cmudrive.maps.routing import LanePos, RoutePlanner
@@ -65,6 +66,11 @@ class OppositeVehicle(Scenario):
         route = self.ctx.routes[0]
         self.ego_lane = int(route.lane[before])
         self.junction = int(m.lane_junction[route.lane[before + 1]])
+        if self.red_light and not np.any((m.link_from == self.ego_lane) & (m.link_tls >= 0)):
+            raise self.error(
+                f"no place for the scenario: CAV 0 enters its junction from lane "
+                f"{m.lane_ids[self.ego_lane]}, which has no traffic light (the red-light runner needs one)"
+            )
         entering = ~m.lane_internal[m.link_from] & (m.lane_kind[m.link_from] == LaneKind.DRIVING)
         links = np.flatnonzero(
             (m.link_junction == self.junction) & entering & (m.link_dir == TurnDir.STRAIGHT)
@@ -93,6 +99,7 @@ class OppositeVehicle(Scenario):
         names = [str(m.edge_ids[m.lane_edge[x]]) for x in path.path if not m.lane_internal[x]]
         self.edges = [e for i, e in enumerate(names) if i == 0 or e != names[i - 1]]
         self.sink_xy = point_xy(m, sink)
+        self.path_xy = path.xy  # (n, 2) [m] its drive through the junction
         self.max_time = path.length / SPEED  # [s]
         adv_end, adv_heading = _end(m, lane)
         self.collision_point = self._meet(ego_end, ego_heading, adv_end, adv_heading)
@@ -103,6 +110,11 @@ class OppositeVehicle(Scenario):
         for i, r in enumerate(self.ctx.routes):
             k0 = int(np.argmin(np.linalg.norm(r.xy - self.trigger_xy, axis=1)))
             self.goal[i] = exit_distance(r.xy, r.in_junction, r.distance, k0)
+
+    def plan(self) -> list[PlanItem]:
+        start = point(EV_TYPE, self.path_xy[0], float(np.arctan2(*(self.path_xy[1] - self.path_xy[0])[::-1])))
+        items: list[PlanItem] = [start, path("approach", self.path_xy)]
+        return items + ([self.light_point(self.ego_lane)] if self.red_light else [])
 
     def _meet(self, a: np.ndarray, ha: float, b: np.ndarray, hb: float) -> np.ndarray:
         """Where the lines through a (heading ha) and b (heading hb) cross (junction centre: parallel)."""

@@ -31,7 +31,8 @@ import numpy as np
 from cmudrive.bench.criteria import RouteCriteria
 from cmudrive.bench.routes import ScenarioSpec
 from cmudrive.bench.scenarios.params import Param, ScenarioError, parse_params
-from cmudrive.bench.scenarios.placement import LanePoint, walk
+from cmudrive.bench.scenarios.placement import LanePoint, heading, point_xy, walk
+from cmudrive.bench.scenarios.plan import PlanItem, point
 from cmudrive.maps import RoadMap, Route
 from cmudrive.sim.dynamics import Controls
 from cmudrive.sim.snapshot import Role, Snapshot
@@ -62,10 +63,10 @@ class ScenarioContext:
     """What a scenario acts on: the world, the map, the CAV routes, the criteria, one random stream."""
 
     route_id: str
-    world: World
+    world: World | None  # None: built only for its plan (``plan_scenarios``); the life cycle needs one
     map: RoadMap
     routes: list[Route]
-    criteria: RouteCriteria
+    criteria: RouteCriteria | None
     rng: np.random.Generator
     config: ScenarioConfig = field(default_factory=ScenarioConfig)
 
@@ -140,6 +141,11 @@ class Scenario:
     def place(self) -> None:
         """Compute the actors' places at setup (raise :meth:`error` when the map has no place)."""
 
+    def plan(self) -> list[PlanItem]:
+        """What this scenario will spawn and where (points) and how its actors or flows move (paths), from
+        the placement computed at setup; the base has no actors."""
+        return []
+
     def on_instantiate(self) -> None:
         """Spawn the actors that are present from instantiation."""
 
@@ -161,7 +167,15 @@ class Scenario:
     # ------------------------------------------------------------------ shared tools
     @property
     def world(self) -> World:
+        if self.ctx.world is None:
+            raise RuntimeError(f"scenario {self.spec.name} was built for its plan only: it has no world")
         return self.ctx.world
+
+    @property
+    def criteria(self) -> RouteCriteria:
+        if self.ctx.criteria is None:
+            raise RuntimeError(f"scenario {self.spec.name} was built for its plan only: it has no criteria")
+        return self.ctx.criteria
 
     @property
     def map(self) -> RoadMap:
@@ -169,7 +183,7 @@ class Scenario:
 
     @property
     def time(self) -> float:
-        return self.ctx.world.time
+        return self.world.time
 
     def num(self, name: str) -> float:
         """A numeric parameter's value, in its own unit."""
@@ -221,6 +235,11 @@ class Scenario:
         route = self.ctx.routes[0]
         return LanePoint(int(route.lane[k]), float(route.s[k]))
 
+    def light_point(self, lane: int) -> PlanItem:
+        """A plan marker at the end of ``lane`` (its stop line): a signal the scenario forces."""
+        end = LanePoint(lane, float(self.map.lane_length[lane]))
+        return point("light", point_xy(self.map, end), heading(self.map, end))
+
     def spawn(
         self, suffix: str, type_name: str, xy: np.ndarray, yaw: float, speed: float = 0.0, prop: bool = False
     ) -> str:
@@ -238,7 +257,7 @@ class Scenario:
 
     def running_charged(self) -> np.ndarray:
         """(n,) bool: charged CAVs whose evaluation is still running."""
-        return self.charged & ~self.ctx.criteria.finished()
+        return self.charged & ~self.criteria.finished()
 
     # ------------------------------------------------------------------ the life cycle
     def step(self, snap: Snapshot, progress: RouteProgress) -> None:
@@ -283,10 +302,10 @@ class Scenario:
             f"Scenario {self.spec.name} ({self.type_name}) timed out after {self.ctx.config.timeout:g} s"
         )
         for i in np.flatnonzero(self.running_charged() & ~self.passed).tolist():
-            self.ctx.criteria.record_scenario_timeout(i, int(snap.step), message)
+            self.criteria.record_scenario_timeout(i, int(snap.step), message)
 
     def _suspend_blocked(self, suspended: bool) -> None:
         if not self.uses_timeout:
             return
         for i in np.flatnonzero(self.charged).tolist():
-            self.ctx.criteria.suspend_blocked(i, suspended)
+            self.criteria.suspend_blocked(i, suspended)

@@ -56,6 +56,7 @@ from cmudrive.bench.scenarios.placement import (
     walk,
     width,
 )
+from cmudrive.bench.scenarios.plan import PlanItem, path, point
 from cmudrive.maps.model import NO_INDEX, LaneKind
 from cmudrive.sim.actor_types import ACTOR_TYPES
 from cmudrive.sim.snapshot import Snapshot
@@ -100,6 +101,12 @@ class Crossing(Scenario):
     crossers: list[Crosser]
     props: list[tuple[str, str, np.ndarray, float]]  # suffix, type, position, yaw
     tta: tuple[float, float, np.ndarray]  # seconds, metres, point
+
+    def plan(self) -> list[PlanItem]:
+        items: list[PlanItem] = [point(type_name, xy, yaw) for _, type_name, xy, yaw in self.props]
+        for c in self.crossers:
+            items += [point(c.type_name, c.start, c.yaw), path("crossing", c.motion.path)]
+        return items
 
     def on_instantiate(self) -> None:
         for suffix, type_name, xy, yaw in self.props:

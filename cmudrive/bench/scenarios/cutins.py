@@ -34,6 +34,7 @@ from cmudrive.bench.scenarios.base import RouteProgress, Scenario
 from cmudrive.bench.scenarios.behaviours import PathMotion, lane_change_path, lane_path, time_to_arrival
 from cmudrive.bench.scenarios.params import DIRECTION, KMH, Param
 from cmudrive.bench.scenarios.placement import LanePoint, heading, neighbour, point_xy, side_sign, walk
+from cmudrive.bench.scenarios.plan import PlanItem, path, point
 from cmudrive.maps.coords import carla_to_map
 from cmudrive.maps.model import NO_INDEX, LaneKind
 from cmudrive.sim.actor_types import ACTOR_TYPES
@@ -56,6 +57,10 @@ class CutIn(Scenario):
     tta: tuple[float, float, np.ndarray]  # seconds, metres, point
     change_speed: float | None  # [m/s] during the lane change (None: the triggering CAV's speed)
     cruise_speed: float  # [m/s] after it
+
+    def plan(self) -> list[PlanItem]:
+        items: list[PlanItem] = [point("car", xy, yaw) for _, xy, yaw in self.cars]
+        return [*items, path("cut_in", self.path)]
 
     def on_instantiate(self) -> None:
         if not self.hidden:
@@ -241,6 +246,12 @@ class HighwayCutIn(Scenario):
             if seen and not m.lane_internal[lane]:
                 return travelled
         raise self.error("parameter 'other_actor_location': the car's lane leads through no junction")
+
+    def plan(self) -> list[PlanItem]:
+        """The car at its start and its ramp path to the merge point (the lane change itself is timed to
+        the CAV's speed at run time)."""
+        xy, yaw = self.approach.pose()
+        return [point("car", xy, yaw), path("cut_in", self.approach.path)]
 
     def on_activate(self, snap: Snapshot) -> None:
         xy, yaw = self.approach.pose()

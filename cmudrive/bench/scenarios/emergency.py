@@ -19,9 +19,10 @@ import math
 import numpy as np
 
 from cmudrive.bench.scenarios.base import RouteProgress, Scenario
-from cmudrive.bench.scenarios.behaviours import ahead_of
+from cmudrive.bench.scenarios.behaviours import ahead_of, lane_path
 from cmudrive.bench.scenarios.params import Param
-from cmudrive.bench.scenarios.placement import neighbour, point_xy, walk
+from cmudrive.bench.scenarios.placement import heading, neighbour, point_xy, walk
+from cmudrive.bench.scenarios.plan import PlanItem, path, point
 from cmudrive.maps.model import NO_INDEX
 from cmudrive.sim.actor_types import ACTOR_TYPES
 from cmudrive.sim.snapshot import Role, Snapshot
@@ -29,6 +30,7 @@ from cmudrive.sim.snapshot import Role, Snapshot
 EV_TYPE = "ambulance"
 EV_HEADWAY = 0.3  # [s] its car-following headway: it closes to ~10 m behind a blocker at 20 m/s
 EXTRA_SPEED = 25.0  # [m/s] over the CAV's speed
+APPROACH_PAST = 30.0  # [m] past T that the plan draws the approach (it drives on along the route)
 NEAR, NEAR_TIME = 50.0, 10.0  # [m], [s]: within NEAR of CAV 0, then NEAR_TIME: end
 PASS_NEAR, PASS_DRIVE = 10.0, 50.0  # [m]: ahead of CAV 0 within PASS_NEAR, then PASS_DRIVE more: end
 
@@ -59,6 +61,15 @@ class YieldToEmergencyVehicle(Scenario):
         self.ev_id = f"{self.spec.name}:ev"
         self.near_at = math.nan  # [s] when the vehicle first came within NEAR of CAV 0
         self.passed_at = math.nan  # [m] the vehicle's driven distance when it first got ahead of CAV 0
+
+    def plan(self) -> list[PlanItem]:
+        """The vehicle in the ego lane ``distance`` m behind T and its approach along CAV 0's lanes."""
+        m, d = self.map, self.num("distance")
+        lane_ahead = lane_path(m, self.spawn_at, d + APPROACH_PAST, prefer=self.route_lanes)
+        return [
+            point(EV_TYPE, point_xy(m, self.spawn_at), heading(m, self.spawn_at)),
+            path("approach", lane_ahead),
+        ]
 
     def _edges(self) -> list[str]:
         """SUMO edges from the spawn lane along CAV 0's route."""
@@ -118,7 +129,7 @@ class YieldToEmergencyVehicle(Scenario):
         pose = getattr(self, "ev_pose", None)
         if pose is not None:
             for i in np.flatnonzero(self.running_charged()).tolist():
-                self.ctx.criteria.record_yield_to_emergency_vehicle(i, pose[0], pose[1], actor=self.ev_id)
+                self.criteria.record_yield_to_emergency_vehicle(i, pose[0], pose[1], actor=self.ev_id)
         self.world.sumo.remove(self.ev_id)
         if self.world.background is not None:
             self.world.background.readd_lane([self.t_wp.lane])

@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from cmudrive.bench.scenarios.placement import LanePoint, point_xy
-from cmudrive.maps import RoadMap
+from cmudrive.maps import RoadMap, Route
 from cmudrive.maps.routing import LanePos, RoutePlanner
 from cmudrive.sim.actor_types import ACTOR_TYPES
 from cmudrive.sim.snapshot import Role, Snapshot
@@ -30,13 +30,22 @@ FLOW_TYPE = "car"
 IMPOSED_SPEED_FACTOR = 3.0  # an ActorFlow car may drive this many times a lane's limit (its speed is imposed)
 
 
+def flow_path(
+    road_map: RoadMap, source: LanePoint, sink: LanePoint, lanes: np.ndarray | None = None
+) -> Route:
+    """The lane-level path a flow's cars drive from ``source`` to ``sink`` over ``lanes`` ((N,) bool;
+    default the driving lanes); RouteError when there is none."""
+    planner = RoutePlanner(road_map, lanes=lanes)
+    return planner.plan_lanes(LanePos(source.lane, source.s), LanePos(sink.lane, sink.s))
+
+
 class VehicleFlow:
     """One flow of SUMO cars; :meth:`update` once per tick while it runs."""
 
     def __init__(
         self,
         name: str,
-        world: World,
+        world: World | None,
         road_map: RoadMap,
         source: LanePoint,
         sink: LanePoint,
@@ -44,11 +53,18 @@ class VehicleFlow:
         speed: float,
         rng: np.random.Generator,
         imposed: bool,
+        type_name: str = FLOW_TYPE,
+        lanes: np.ndarray | None = None,
+        red_ahead: bool = False,
     ) -> None:
-        self.name, self.world, self.map = name, world, road_map
+        """``type_name``: the actor type of the flow's vehicles; ``lanes``: (N,) bool mask of the lanes its
+        path may use (default the driving lanes; the bike lanes for a bicycle flow); ``red_ahead``: the
+        lights ahead of the flow stay red (the vehicles ignore them), so a vehicle inserted on a signalised
+        lane departs no faster than it could stop at the line (SUMO refuses to insert it otherwise)."""
+        self.name, self._world, self.map = name, world, road_map
         self.source, self.sink, self.gap_range, self.speed = source, sink, gap, float(speed)
-        self.rng, self.imposed = rng, imposed
-        path = RoutePlanner(road_map).plan_lanes(LanePos(source.lane, source.s), LanePos(sink.lane, sink.s))
+        self.rng, self.imposed, self.type_name, self.red_ahead = rng, imposed, type_name, red_ahead
+        path = flow_path(road_map, source, sink, lanes)
         self.path = path
         self.path_length = path.length  # [m]
         names = [
@@ -57,8 +73,15 @@ class VehicleFlow:
         self.edges = [e for i, e in enumerate(names) if i == 0 or e != names[i - 1]]
         self.sink_xy = point_xy(road_map, sink)
         self.cars: list[str] = []
+        self.born: dict[str, int] = {}  # car -> world step count when it was added
         self.spawned = 0
         self.gap = self._draw()
+
+    @property
+    def world(self) -> World:
+        if self._world is None:
+            raise RuntimeError(f"flow {self.name} was built for its plan only: it has no world")
+        return self._world
 
     def _draw(self) -> float:
         lo, hi = self.gap_range[0], self.gap_range[-1]
@@ -70,9 +93,13 @@ class VehicleFlow:
 
         sumo = self.world.sumo
         rows = {str(a): i for i, a in enumerate(snap.ids.tolist()) if str(a).startswith(self.name)}
+        # a car SUMO discarded at insertion (it could not depart, e.g. too fast before a red line) is neither
+        # running nor pending, and never reported as arrived: drop it, or the flow would wait for it forever
+        known = set(libsumo.vehicle.getIDList()) | set(libsumo.simulation.getPendingVehicles())
         for car in list(self.cars):
             r = rows.get(car)
-            gone = car not in sumo.actors
+            stepped = self.world.step_count > self.born.get(car, self.world.step_count)  # SUMO tried it
+            gone = car not in sumo.actors or (stepped and car not in known)
             at_sink = (
                 r is not None
                 and np.hypot(snap.x[r] - self.sink_xy[0], snap.y[r] - self.sink_xy[1]) < SINK_RADIUS
@@ -80,6 +107,7 @@ class VehicleFlow:
             if gone or at_sink:
                 sumo.remove(car)
                 self.cars.remove(car)
+                self.born.pop(car, None)
         last = f"{self.name}:{self.spawned - 1}"
         if self.spawned and last in self.cars:
             try:
@@ -97,7 +125,7 @@ class VehicleFlow:
         m, path = self.map, self.path
         places: list[int] = []
         d = self.gap
-        while d < path.length - SINK_RADIUS - 0.5 * ACTOR_TYPES[FLOW_TYPE].length:
+        while d < path.length - SINK_RADIUS - 0.5 * ACTOR_TYPES[self.type_name].length:
             places.append(int(np.searchsorted(path.distance, d)))
             d += self._draw()
         for k in reversed(places):
@@ -111,13 +139,20 @@ class VehicleFlow:
     def _spawn(self, at: LanePoint | None = None, edges: list[str] | None = None) -> None:
         car = f"{self.name}:{self.spawned}"
         self.spawned += 1
-        half = 0.5 * ACTOR_TYPES[FLOW_TYPE].length
+        kind = ACTOR_TYPES[self.type_name]
+        half = 0.5 * kind.length
         at = at or self.source
+        pos = min(at.s + half, float(self.map.lane_length[at.lane]) - 0.1)
+        speed = min(self.speed, kind.max_speed)  # SUMO refuses a departure above the type's top speed
+        m = self.map
+        if self.red_ahead and np.any((m.link_from == at.lane) & (m.link_tls >= 0)):
+            room = max(float(m.lane_length[at.lane]) - pos - 1.0, 0.0)  # [m] to the stop line
+            bt = kind.decel * kind.tau  # SUMO's safe speed: stop within room after a reaction time tau
+            speed = min(speed, float(np.sqrt(bt * bt + 2.0 * kind.decel * room) - bt))
         sumo = self.world.sumo
         sumo.add_vehicle(
-            car, FLOW_TYPE, edges or self.edges, int(Role.SCENARIO),
-            depart_pos=min(at.s + half, float(self.map.lane_length[at.lane]) - 0.1),
-            depart_lane=int(self.map.lane_index[at.lane]), depart_speed=self.speed,
+            car, self.type_name, edges or self.edges, int(Role.SCENARIO),
+            depart_pos=pos, depart_lane=int(self.map.lane_index[at.lane]), depart_speed=speed,
         )  # fmt: skip
         if self.imposed:
             sumo.override(
@@ -128,12 +163,16 @@ class VehicleFlow:
             libsumo.vehicle.setSpeedFactor(
                 car, IMPOSED_SPEED_FACTOR
             )  # lane limits must not cap the flow speed
+            top = ACTOR_TYPES[self.type_name].max_speed
+            if self.speed > top:
+                libsumo.vehicle.setMaxSpeed(car, self.speed)
         else:
             import libsumo
 
             sumo.override(car, lane_changes=False)
             libsumo.vehicle.setMaxSpeed(car, self.speed)
         self.cars.append(car)
+        self.born[car] = self.world.step_count
         self.gap = self._draw()
 
     def stop(self) -> None:

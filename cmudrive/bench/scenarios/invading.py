@@ -21,6 +21,7 @@ from cmudrive.bench.scenarios.base import RouteProgress, Scenario
 from cmudrive.bench.scenarios.behaviours import PathMotion, ahead_of, lane_path
 from cmudrive.bench.scenarios.params import Param
 from cmudrive.bench.scenarios.placement import LanePoint, heading, point_xy, walk
+from cmudrive.bench.scenarios.plan import PlanItem, path, point
 from cmudrive.maps.model import NO_INDEX
 from cmudrive.sim.snapshot import Snapshot
 
@@ -66,6 +67,10 @@ class InvadingTurn(Scenario):
             covered, k = covered + CONE_STEP, k + 1
         self.cars: list[tuple[str, PathMotion]] = []
         self.spawned = 0
+
+    def plan(self) -> list[PlanItem]:
+        items: list[PlanItem] = [point("cone", xy, yaw) for xy, yaw in self.cones]
+        return [*items, path("invading", self.path)]
 
     def on_activate(self, snap: Snapshot) -> None:
         background = self.world.background

@@ -34,6 +34,7 @@ import numpy as np
 from cmudrive.bench.scenarios.base import RouteProgress, Scenario
 from cmudrive.bench.scenarios.behaviours import within
 from cmudrive.bench.scenarios.placement import heading, point_xy, walk
+from cmudrive.bench.scenarios.plan import PlanItem, point
 from cmudrive.sim.dynamics import Controls
 from cmudrive.sim.snapshot import Snapshot
 
@@ -125,6 +126,9 @@ class SignalizedTurn(RouteRule):
                 f"{m.lane_ids[self.approach]}, which has no traffic light"
             )
 
+    def plan(self) -> list[PlanItem]:
+        return [self.light_point(self.approach)]
+
     def on_activate(self, snap: Snapshot) -> None:
         self.phase_index = -1
 
@@ -172,6 +176,9 @@ class BlockedIntersection(Scenario):
         self.junction = int(self.map.lane_junction[self.ctx.routes[0].lane[after - 1]])
         self.close_at = math.nan
 
+    def plan(self) -> list[PlanItem]:
+        return [point("car", self.xy, heading(self.map, self.at))]
+
     def on_activate(self, snap: Snapshot) -> None:
         if self.world.background is not None and self.junction >= 0:
             self.world.background.clear_junction(self.junction)
@@ -205,6 +212,9 @@ class ControlLoss(RouteRule):
         self.patches = np.array([point_xy(m, p) for p in points])  # (3, 2) [m]
         signs = self.ctx.rng.choice([-1.0, 1.0], size=(len(self.PATCHES), 2))
         self.means = signs * np.array([self.THROTTLE[0], self.STEER[0]])  # (3, 2) throttle, steer
+
+    def plan(self) -> list[PlanItem]:
+        return [point("patch", xy) for xy in self.patches]
 
     def perturb(self, controls: Controls, cav: np.ndarray, progress: RouteProgress) -> Controls:
         xy = progress.xy[cav]

@@ -23,6 +23,7 @@ from cmudrive.bench.scenarios.actorflows import (
 )
 from cmudrive.bench.scenarios.adversaries import OppositeVehicleRunningRedLight, OppositeVehicleTakingPriority
 from cmudrive.bench.scenarios.base import Phase, RouteProgress, Scenario, ScenarioConfig, ScenarioContext
+from cmudrive.bench.scenarios.bicycles import CrossingBicycleFlow
 from cmudrive.bench.scenarios.crossings import (
     DynamicObjectCrossing,
     ParkingCrossingPedestrian,
@@ -115,6 +116,7 @@ REGISTRY: dict[str, type[Scenario]] = {
         InvadingTurn,
         ParkingExit,
         InterurbanAdvancedActorFlow,
+        CrossingBicycleFlow,
     )
 }
 
@@ -155,13 +157,14 @@ class ScenarioManager:
 
 def build_scenarios(
     spec: RouteSpec,
-    world: World,
+    world: World | None,
     road_map: RoadMap,
     routes: list[Route],
-    criteria: RouteCriteria,
+    criteria: RouteCriteria | None,
     config: ScenarioConfig | None = None,
 ) -> ScenarioManager:
-    """The route's scenarios, placed on the map (ScenarioError when one cannot be)."""
+    """The route's scenarios, placed on the map (ScenarioError when one cannot be). Without a world and
+    criteria the scenarios are placed for their :meth:`Scenario.plan` only (:func:`plan_scenarios`)."""
     ctx = ScenarioContext(
         spec.id,
         world,
@@ -179,3 +182,9 @@ def build_scenarios(
         else:
             built.append(cls(sc, ctx))
     return ScenarioManager(built, unsupported, routes)
+
+
+def plan_scenarios(spec: RouteSpec, road_map: RoadMap, routes: list[Route]) -> ScenarioManager:
+    """The route's scenarios placed as the evaluator places them (same random stream), without a world:
+    for their plans (what they will spawn and where); stepping them raises."""
+    return build_scenarios(spec, None, road_map, routes, None)

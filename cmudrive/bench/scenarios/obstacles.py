@@ -36,7 +36,7 @@ import numpy as np
 
 from cmudrive.bench.scenarios.base import RouteProgress, Scenario
 from cmudrive.bench.scenarios.behaviours import PathMotion, ahead_of, lane_path, time_to_arrival, within
-from cmudrive.bench.scenarios.flows import VehicleFlow
+from cmudrive.bench.scenarios.flows import VehicleFlow, flow_path
 from cmudrive.bench.scenarios.params import DIRECTION, KMH, Param
 from cmudrive.bench.scenarios.placement import (
     LanePoint,
@@ -48,6 +48,7 @@ from cmudrive.bench.scenarios.placement import (
     walk,
     width,
 )
+from cmudrive.bench.scenarios.plan import PlanItem, path, point
 from cmudrive.maps.model import NO_INDEX, LaneKind
 from cmudrive.sim.actor_types import ACTOR_TYPES
 from cmudrive.sim.snapshot import Snapshot
@@ -170,7 +171,7 @@ class LaneObstacle(Scenario):
                 background.max_speed(self.num("speed") * KMH)
             return
         for i in np.flatnonzero(self.charged).tolist():
-            self.ctx.criteria.set_wrong_direction_check(i, False)
+            self.criteria.set_wrong_direction_check(i, False)
         if not self.opposite_flow:
             return
         if background is not None:
@@ -180,6 +181,12 @@ class LaneObstacle(Scenario):
     def oncoming_flow(self) -> VehicleFlow:
         """OppositeFlow: at the ego lane's speed limit v, from 1.5 v[km/h] + 30 m upstream to as far
         downstream of the oncoming-lane point beside the last obstacle (clipped at junctions)."""
+        source, sink, v = self.oncoming_ends()
+        gap, rng = self.span("frequency"), self.ctx.rng
+        return VehicleFlow(f"{self.spec.name}:opp", self.world, self.map, source, sink, gap, v, rng, False)
+
+    def oncoming_ends(self) -> tuple[LanePoint, LanePoint, float]:
+        """The OppositeFlow's source and sink, and its speed [m/s]."""
         m, last = self.map, self.items[-1].at
         opposite = int(m.lane_opposite[last.lane])
         s, _ = m.index.project(point_xy(m, last)[None], np.array([opposite]))
@@ -188,10 +195,19 @@ class LaneObstacle(Scenario):
         half = 1.5 * v * 3.6 + 30.0  # [m] upstream mixes units: 1.5 x (speed in km/h) metres
         source = walk(m, ref, -half, through_junctions=False)
         sink = walk(m, ref, half, through_junctions=False)
-        rng = self.ctx.rng
-        return VehicleFlow(
-            f"{self.spec.name}:opp", self.world, m, source, sink, self.span("frequency"), v, rng, False
-        )
+        return source, sink, v
+
+    def plan(self) -> list[PlanItem]:
+        m = self.map
+        items: list[PlanItem] = []
+        if self.warning_sign:
+            items.append(point("warning_sign", self.sign_xy, heading(m, self.t_wp) + np.pi / 2))
+        for it in self.items:
+            items.append(point(it.type_name, point_xy(m, it.at, it.offset), heading(m, it.at) + it.yaw))
+        if self.two_ways and self.opposite_flow:
+            source, sink, _ = self.oncoming_ends()
+            items.append(path("flow", flow_path(m, source, sink).xy))
+        return items
 
     def on_end(self) -> None:
         background = self.world.background
@@ -199,7 +215,7 @@ class LaneObstacle(Scenario):
             background.max_speed(None)
         if self.capped and self.two_ways:
             for i in np.flatnonzero(self.charged).tolist():
-                self.ctx.criteria.set_wrong_direction_check(i, True)
+                self.criteria.set_wrong_direction_check(i, True)
             if self.flow is not None:
                 self.flow.stop()
                 if background is not None:
@@ -318,6 +334,9 @@ class HazardAtSideLane(LaneObstacle):
         ]
         self.riding = False
         self.ahead_at = np.full(len(self.ctx.routes), np.nan)  # [m] route distance when ahead of bike 2
+
+    def plan(self) -> list[PlanItem]:
+        return super().plan() + [path("ride", bike.path) for bike in self.bikes]
 
     def on_activate(self, snap: Snapshot) -> None:
         super().on_activate(snap)

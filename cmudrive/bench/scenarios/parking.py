@@ -17,8 +17,10 @@ from typing import ClassVar
 import numpy as np
 
 from cmudrive.bench.scenarios.base import RouteProgress, Scenario
+from cmudrive.bench.scenarios.behaviours import lane_path
 from cmudrive.bench.scenarios.params import DIRECTION, Param
 from cmudrive.bench.scenarios.placement import LanePoint, heading, point_xy, side_sign, walk
+from cmudrive.bench.scenarios.plan import PlanItem, path, point
 from cmudrive.maps.model import LaneKind
 from cmudrive.sim.actor_types import ACTOR_TYPES
 from cmudrive.sim.snapshot import Role, Snapshot
@@ -62,16 +64,28 @@ class ParkingExit(Scenario):
         self.goal += AFTER_FRONT
         self.beside = f"{self.spec.name}:beside"
         self.beside_gone = False
-
-    def on_instantiate(self) -> None:
-        m, world = self.map, self.world
-        xy, yaw = point_xy(m, self.slot, self.edge_offset), heading(m, self.slot)
-        st = world.cav_state
-        st.x[0], st.y[0], st.yaw[0], st.speed[0] = xy[0], xy[1], yaw, 0.0  # CAV 0 into the slot
+        m = self.map
+        self.slot_pose = (point_xy(m, self.slot, self.edge_offset), heading(m, self.slot))  # CAV 0's start
+        self.parked = []  # (name, (2,) position [m], yaw [rad]) of the cars ahead of and behind the slot
         front, behind = self.num("front_vehicle_distance"), -self.num("behind_vehicle_distance")
         for name, ahead in (("front", front), ("behind", behind)):
             at = walk(m, self.slot, ahead, through_junctions=False)
-            self.spawn(name, "car", point_xy(m, at, self.edge_offset), heading(m, at))
+            self.parked.append((name, point_xy(m, at, self.edge_offset), heading(m, at)))
+
+    def plan(self) -> list[PlanItem]:
+        m = self.map
+        items: list[PlanItem] = [point("slot", *self.slot_pose)]
+        items += [point("car", xy, yaw) for _, xy, yaw in self.parked]
+        items.append(point("car", point_xy(m, self.t_wp), heading(m, self.t_wp)))
+        return [*items, path("drive_off", lane_path(m, self.t_wp, BESIDE_DRIVE, prefer=self.route_lanes))]
+
+    def on_instantiate(self) -> None:
+        m, world = self.map, self.world
+        xy, yaw = self.slot_pose
+        st = world.cav_state
+        st.x[0], st.y[0], st.yaw[0], st.speed[0] = xy[0], xy[1], yaw, 0.0  # CAV 0 into the slot
+        for name, at_xy, at_yaw in self.parked:
+            self.spawn(name, "car", at_xy, at_yaw)
         route = self.ctx.routes[0]
         names = [str(m.edge_ids[m.lane_edge[x]]) for x in route.path if not m.lane_internal[x]]
         edges = [e for i, e in enumerate(names) if i == 0 or e != names[i - 1]]

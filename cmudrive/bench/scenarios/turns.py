@@ -30,6 +30,7 @@ from cmudrive.bench.scenarios.flows import VehicleFlow
 from cmudrive.bench.scenarios.junctions import AFTER_JUNCTION, LIGHT_PHASE, exit_distance
 from cmudrive.bench.scenarios.params import Param
 from cmudrive.bench.scenarios.placement import LanePoint, walk
+from cmudrive.bench.scenarios.plan import PlanItem, path
 from cmudrive.maps import RouteError
 from cmudrive.maps.model import LaneKind, TurnDir
 from cmudrive.sim.snapshot import Snapshot
@@ -94,7 +95,7 @@ class JunctionTurnFlow(Scenario):
         self.sink = walk(m, LanePoint(out, 0.0), self.sink_factor * v, through_junctions=False)
         try:
             self.flow = VehicleFlow(
-                f"{self.spec.name}:flow0", self.world, m, self.source, self.sink,
+                f"{self.spec.name}:flow0", self.ctx.world, m, self.source, self.sink,
                 self.span("source_dist_interval"), v, self.ctx.rng, imposed=True,
             )  # fmt: skip
         except RouteError as exc:
@@ -105,6 +106,12 @@ class JunctionTurnFlow(Scenario):
             self.goal[i] = exit_distance(r.xy, r.in_junction, r.distance, k0) + AFTER_JUNCTION
         if self.signalized and not np.any((m.link_from == self.ego_lane) & (m.link_tls >= 0)):
             raise self.error("no place for the scenario: CAV 0's junction has no traffic light")
+
+    def plan(self) -> list[PlanItem]:
+        items: list[PlanItem] = [] if self.flow is None else [path("flow", self.flow.path.xy)]
+        if self.signalized:
+            items += [self.light_point(self.ego_lane), self.light_point(self.flow_lane)]
+        return items
 
     def _end_heading(self, lane: int) -> float:
         p = self.map.polyline(lane)
