@@ -162,3 +162,29 @@ def test_mini_split_routes_run_with_the_pid_agent(sets: dict[str, list[RouteSpec
     for spec in picks:
         result = evaluate_route(spec, PidAgent, config)
         assert result.error is None, (spec.id, result.error)
+
+
+def test_layouts_the_rules_ask_for(sets: dict[str, list[RouteSpec]], dense: dict[str, list[Route]]) -> None:
+    """SequentialLaneChange routes move two lanes left; stop-sign turns approach a stop line; the
+    CrossingBicycleFlow source lies on a bike lane."""
+    from cmudrive.maps.model import LaneKind
+    from cmudrive.maps.routing import RoadOption
+
+    for spec in sets["cmudrive220"]:
+        r0, t = dense[spec.id][0], _type(spec)
+        m = load_map(spec.town_path())
+        if t == "SequentialLaneChange":
+            change = r0.option == RoadOption.CHANGELANELEFT
+            assert int(np.sum(change[1:] & ~change[:-1]) + change[0]) >= 2, spec.id
+        elif t == "VanillaNonSignalizedTurnEncounterStopsign":
+            first = int(np.flatnonzero(r0.in_junction)[0])
+            out = first + int(np.flatnonzero(~r0.in_junction[first:])[0])
+            links = (m.link_from == r0.lane[first - 1]) & (m.link_to == r0.lane[out])
+            assert set(m.link_state[links].tolist()) <= {"s", "w"} and links.any(), spec.id
+        elif t == "CrossingBicycleFlow":
+            p = spec.scenarios[0].params["start_actor_flow"]
+            assert isinstance(p, dict)
+            xy = np.array([[float(p["x"]), -float(p["y"])]])
+            bike = np.flatnonzero(m.lane_kind == LaneKind.BIKE)
+            _, d = m.index.project(np.repeat(xy, len(bike), axis=0), bike)
+            assert np.min(np.abs(d)) < 1.0, spec.id

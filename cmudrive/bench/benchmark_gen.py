@@ -43,7 +43,7 @@ from cmudrive.bench.routes import CavSpec, RouteSpec, ScenarioSpec
 from cmudrive.bench.scenario_types import SCENARIO_TYPES
 from cmudrive.bench.scenarios.flows import VehicleFlow
 from cmudrive.bench.scenarios.placement import LanePoint, walk
-from cmudrive.maps import LanePos, RoadMap, Route, RouteError, densify, load_map
+from cmudrive.maps import LanePos, RoadMap, RoadOption, Route, RouteError, densify, load_map
 from cmudrive.maps.coords import map_to_carla
 from cmudrive.maps.model import JunctionKind, TurnDir
 
@@ -72,6 +72,7 @@ class TypeRule:
     params: tuple[tuple[str, Any], ...] = ()
     trigger_at: tuple[float, float] = TRIGGER_AFTER_START  # [m] trigger along the route from its start
     three_way: bool = False  # the junction has exactly three approaches (T_Junction)
+    lane_shift: bool = False  # the route moves two lanes to the left (SequentialLaneChange)
 
 
 MULTI = ("interurban", "Town04", "Town03", "highway", "Town05", "Town06", "corridor")
@@ -194,7 +195,7 @@ RULES: dict[str, TypeRule] = {
         trigger_at=(0.0, 0.0),
     ),
     "PedestrianCrossing": TypeRule(URBAN_J, junction="straight"),
-    "SequentialLaneChange": TypeRule(MULTI, trigger_at=(0.0, 0.0)),
+    "SequentialLaneChange": TypeRule(MULTI, trigger_at=(0.0, 0.0), lane_shift=True),
     "SignalizedJunctionLeftTurn": TypeRule(
         SIGNAL_J, junction="left", control="signal", params=_flow((9, 11), (15, 24), (25, 28))
     ),
@@ -281,10 +282,7 @@ def _turn_ok(direction: int, want: str) -> bool:
 def _control_ok(m: RoadMap, link: int, want: str) -> bool:
     j = int(m.link_junction[link])
     signal = int(m.link_tls[link]) >= 0
-    stop = str(m.link_state[link]) in ("s", "w") or int(m.junction_kind[j]) in (
-        JunctionKind.ALLWAY_STOP,
-        JunctionKind.PRIORITY_STOP,
-    )
+    stop = str(m.link_state[link]) in ("s", "w")  # this approach must stop
     return {
         "signal": signal,
         "nosignal": not signal and int(m.junction_kind[j]) != JunctionKind.TRAFFIC_LIGHT,
@@ -330,6 +328,42 @@ def walk_fwd(m: RoadMap, lane: int, d: float) -> tuple[int, float]:
     return p.lane, min(p.s, float(m.lane_length[p.lane]) - 0.5)
 
 
+def _shift_route(town: _Town, rng: np.random.Generator) -> Route | None:
+    """A route from the right lane of a road with >= 3 same-direction lanes to its lane two to the left,
+    90-180 m ahead (the planner inserts the two lane changes)."""
+    m, topo = town.map, town.topo
+    left = m.lane_left
+    ok = np.flatnonzero(
+        topo.normal[topo.cand_lane]
+        & (left[topo.cand_lane] >= 0)
+        & (left[np.maximum(left[topo.cand_lane], 0)] >= 0)
+    )
+    if len(ok) == 0:
+        return None
+    pick = int(rng.choice(ok))
+    lane, s = int(topo.cand_lane[pick]), float(topo.cand_s[pick])
+    target = int(left[left[lane]])
+    if not m.driving[target]:
+        return None
+    s_target, _ = m.index.project(topo.cand_xy[pick][None], np.array([target]))
+    goal = walk(
+        m, LanePoint(target, float(s_target[0])), float(rng.uniform(90.0, 180.0)), through_junctions=True
+    )
+    if m.lane_internal[goal.lane]:
+        return None
+    try:
+        route = topo.planner.plan_lanes(LanePos(lane, s), LanePos(goal.lane, goal.s))
+    except RouteError:
+        return None
+    return route
+
+
+def _left_changes(route: Route) -> int:
+    """Number of left lane changes along a dense route (runs of CHANGELANELEFT points)."""
+    change = route.option == RoadOption.CHANGELANELEFT
+    return int(np.sum(change[1:] & ~change[:-1]) + int(change[0]))
+
+
 def _road_route(town: _Town, rng: np.random.Generator) -> Route | None:
     topo = town.topo
     pick = int(rng.integers(len(topo.cand_lane)))
@@ -373,7 +407,10 @@ def _candidate(
     type_name: str, town: _Town, rng: np.random.Generator, route_id: str, weather: str, seed: int
 ) -> _Candidate | None:
     rule, m = RULES[type_name], town.map
-    route = _junction_route(town, rule, rng) if rule.junction else _road_route(town, rng)
+    if rule.junction:
+        route = _junction_route(town, rule, rng)
+    else:
+        route = _shift_route(town, rng) if rule.lane_shift else _road_route(town, rng)
     if route is None or not ROUTE_LENGTH[0] <= route.length <= ROUTE_LENGTH[1]:
         return None
     keypoints = np.round(_keypoints(route), COORD_DECIMALS)
@@ -385,6 +422,8 @@ def _candidate(
         abs(dense.length - route.length) > 0.05 * route.length
         or not ROUTE_LENGTH[0] <= dense.length <= ROUTE_LENGTH[1]
     ):
+        return None
+    if rule.lane_shift and _left_changes(dense) < 2:
         return None
     k0 = int(np.searchsorted(dense.distance, float(rng.uniform(*rule.trigger_at))))
     if k0 >= len(dense) - 1 or dense.in_junction[k0]:
