@@ -169,12 +169,9 @@ RULES: dict[str, TypeRule] = {
     "NonSignalizedJunctionRightTurn": TypeRule(
         NOSIGNAL_J, junction="right", control="nosignal", params=_flow((8, 14), (16, 22), (25, 30))
     ),
-    "OppositeVehicleRunningRedLight": TypeRule(
-        SIGNAL_J, junction="any", control="signal", params=(("direction", ("right", "left", "opposite")),)
-    ),
-    "OppositeVehicleTakingPriority": TypeRule(
-        NOSIGNAL_J, junction="any", control="nosignal", params=(("direction", ("right", "left")),)
-    ),
+    # direction: by CAV 0's turn (_adversary_side)
+    "OppositeVehicleRunningRedLight": TypeRule(SIGNAL_J, junction="any", control="signal"),
+    "OppositeVehicleTakingPriority": TypeRule(NOSIGNAL_J, junction="any", control="nosignal"),
     "ParkedObstacle": TypeRule(
         MULTI, params=(("distance", (40, 43)), ("direction", "right"), ("speed", (40, 59)))
     ),
@@ -435,6 +432,8 @@ def _candidate(
             return None
         junction = int(m.lane_junction[dense.lane[inside[0]]])
     params = _draw_params(rule, rng)
+    if type_name.startswith("OppositeVehicle"):
+        params["direction"] = _adversary_side(dense, k0, rng)
     placer = FLOW_PLACERS.get(type_name)
     if placer is not None:
         where = placer(m, dense, k0, rng)
@@ -502,6 +501,23 @@ def _junction_cavs(
         starts.append(xy)
         own.add(int(lane))
     return dataclasses.replace(spec, cavs=tuple(cavs))
+
+
+def _adversary_side(route: Route, k0: int, rng: np.random.Generator) -> str:
+    """The approach of the OppositeVehicle* adversary, so that its straight path crosses CAV 0's: for a left
+    turn the opposite approach or the right one, for a right turn the left one, straight on left or right
+    (Bench2Drive-220's pairs)."""
+    inside = np.flatnonzero(route.in_junction[k0:]) + k0
+    after = np.flatnonzero(~route.in_junction[inside[0] :]) + inside[0]
+    end = int(after[0]) if len(after) else len(route) - 1
+    turn = (route.heading[end] - route.heading[inside[0] - 1] + math.pi) % (2 * math.pi) - math.pi
+    if turn > math.radians(30.0):
+        options: tuple[str, ...] = ("opposite", "right")
+    elif turn < -math.radians(30.0):
+        options = ("left",)
+    else:
+        options = ("left", "right")
+    return options[int(rng.integers(len(options)))]
 
 
 def _taken(place: tuple[str, int, float, float], used: Sequence[tuple[str, int, float, float]]) -> bool:
