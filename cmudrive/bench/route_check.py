@@ -14,6 +14,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -75,8 +76,9 @@ def build_placed(spec: RouteSpec, road_map: RoadMap, routes: list[Route]) -> lis
     from cmudrive.bench.scenarios.base import ScenarioConfig, ScenarioContext
     from cmudrive.bench.scenarios.manager import REGISTRY
 
-    rng = np.random.default_rng([spec.seed, 2])
-    ctx = ScenarioContext(spec.id, None, road_map, routes, None, rng, ScenarioConfig())  # type: ignore[arg-type]
+    rng = np.random.default_rng([spec.seed, 2])  # the evaluator's scenario stream (build_scenarios)
+    absent: Any = None  # no world and no criteria: placement must not touch them
+    ctx = ScenarioContext(spec.id, absent, road_map, routes, absent, rng, ScenarioConfig())
     return [REGISTRY[sc.type](sc, ctx) for sc in spec.scenarios if sc.type in REGISTRY]
 
 
