@@ -253,6 +253,37 @@ def routes_check(
         raise typer.Exit(code=1)
 
 
+@routes_app.command("stats")
+def routes_stats(
+    source: Annotated[str, typer.Argument(help="route file, or the name of a committed route set")],
+) -> None:
+    """Table 1's row of a route file (routes, min/max/avg CAVs) and its per-type, per-town and per-weather
+    counts."""
+    from rich.table import Table
+
+    from cmudrive.bench.benchmark_gen import set_stats
+    from cmudrive.bench.routes import read_routes
+
+    try:
+        st = set_stats(read_routes(_routes_path(source)))
+    except (OSError, ValueError) as exc:
+        _fail(exc)
+    row = Table(title=f"{source}: CAVs per route (paper Table 1)")
+    for col in ("routes", "min", "max", "avg"):
+        row.add_column(col, justify="right")
+    row.add_row(str(st["routes"]), str(st["min"]), str(st["max"]), f"{st['avg']:.2f}")
+    console.print(row)
+    for key, title in (("types", "scenario type"), ("towns", "town"), ("weathers", "weather")):
+        counts = st[key]
+        assert isinstance(counts, dict)
+        table = Table(title=f"routes per {title}")
+        table.add_column(title)
+        table.add_column("routes", justify="right")
+        for name, n in sorted(counts.items()):
+            table.add_row(name, str(n))
+        console.print(table)
+
+
 @routes_app.command("import")
 def routes_import(
     source: Annotated[Path, typer.Argument(help="Bench2Drive / Leaderboard-2.0 route file")],

@@ -3,7 +3,9 @@
 Every route is read (the reader's rules: ids, CAV count and ids, ASCII numbers, coordinate and seed
 ranges, weather, scenario types), its town looked up (beside the file, ``--town-dir``, committed towns),
 and every CAV's waypoints planned into its dense route under the evaluator's bounds (10 m to 20 km, no
-loops from back-and-forth waypoints). Scenario trigger points must lie on CAV 0's route. One bad route
+loops from back-and-forth waypoints). Scenario trigger points must lie on CAV 0's route, and every
+scenario must place on the map as the evaluator builds it (parameters parsed and in range, every actor's
+place found: ``place_scenarios``; the scenario classes need no running world for that). One bad route
 does not hide the others: each gets its own line.
 """
 
@@ -12,11 +14,12 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from cmudrive.bench.routes import RouteSpec, read_routes
-from cmudrive.maps import MapError, RoadMap, RouteError, load_map
+from cmudrive.maps import MapError, RoadMap, Route, RouteError, load_map
 
 TRIGGER_TOLERANCE = 5.0  # [m] a scenario's trigger point may lie this far from CAV 0's dense route
 
@@ -47,7 +50,36 @@ def check_route(spec: RouteSpec, maps: dict[Path, RoadMap]) -> RouteCheck:
                 f"route (at most {TRIGGER_TOLERANCE:.0f} m)",
                 len(spec.cavs),
             )
+    problem = place_scenarios(spec, maps[path], routes)
+    if problem is not None:
+        return RouteCheck(spec.id, problem, len(spec.cavs))
     return RouteCheck(spec.id, None, len(spec.cavs), tuple(r.length for r in routes))
+
+
+def place_scenarios(spec: RouteSpec, road_map: RoadMap, routes: list[Route]) -> str | None:
+    """None when every scenario places on the map, else the ``ScenarioError`` message (see
+    :func:`build_placed`)."""
+    from cmudrive.bench.scenarios.params import ScenarioError
+
+    try:
+        build_placed(spec, road_map, routes)
+    except ScenarioError as exc:
+        return str(exc)
+    return None
+
+
+def build_placed(spec: RouteSpec, road_map: RoadMap, routes: list[Route]) -> list[object]:
+    """The route's scenarios with behaviour here, placed on the map: each class built as the evaluator
+    builds it, without a world (placement reads only the map and the CAV routes; the world is used from
+    instantiation on). Raises ``ScenarioError`` naming the problem. Types without behaviour yet have
+    nothing to place."""
+    from cmudrive.bench.scenarios.base import ScenarioConfig, ScenarioContext
+    from cmudrive.bench.scenarios.manager import REGISTRY
+
+    rng = np.random.default_rng([spec.seed, 2])  # the evaluator's scenario stream (build_scenarios)
+    absent: Any = None  # no world and no criteria: placement must not touch them
+    ctx = ScenarioContext(spec.id, absent, road_map, routes, absent, rng, ScenarioConfig())
+    return [REGISTRY[sc.type](sc, ctx) for sc in spec.scenarios if sc.type in REGISTRY]
 
 
 def check_route_file(path: str | Path, town_dirs: Sequence[str] = ()) -> list[RouteCheck]:
@@ -60,4 +92,4 @@ def check_route_file(path: str | Path, town_dirs: Sequence[str] = ()) -> list[Ro
     return out
 
 
-__all__ = ["RouteCheck", "check_route", "check_route_file"]
+__all__ = ["RouteCheck", "build_placed", "check_route", "check_route_file", "place_scenarios"]
