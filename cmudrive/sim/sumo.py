@@ -340,8 +340,11 @@ class SumoSession:
         length: np.ndarray,
     ) -> np.ndarray:
         """Place vehicles at centre poses (map frame) for the next step, SUMO's co-simulation pattern:
-        ``moveToXY(keepRoute=2)`` maps each onto the nearest lane (any edge) and ``setSpeed`` tells SUMO
-        traffic how fast it goes. Returns (n,) bool: no lane within MATCH_RADIUS (off the road)."""
+        ``moveToXY(keepRoute=0)`` maps each onto the nearest lane (any edge) and ``setSpeed`` tells SUMO
+        traffic how fast it goes. Returns (n,) bool: no lane within MATCH_RADIUS (off the road).
+
+        Not keepRoute=2 (CARLA's co-simulation): it lets SUMO's copy leave the network, and with the
+        sublane model libsumo 1.28 then segfaults in the next step (docs/simulator.md)."""
         import libsumo
 
         fx = (x + 0.5 * length * np.cos(yaw)).tolist()
@@ -352,10 +355,10 @@ class SumoSession:
         for i, (vid, v) in enumerate(zip(ids, np.asarray(speed, np.float64).tolist(), strict=True)):
             pose = (fx[i], fy[i], angle[i])
             try:  # a small match radius keeps SUMO's lane search cheap (~10 us instead of ~80 us)
-                move(vid, "", -1, *pose, keepRoute=2, matchThreshold=MATCH_RADIUS)
+                move(vid, "", -1, *pose, keepRoute=0, matchThreshold=MATCH_RADIUS)
             except libsumo.TraCIException:  # off the road: map it onto the nearest lane within 100 m
                 off_road[i] = True
-                move(vid, "", -1, *pose, keepRoute=2, matchThreshold=MATCH_RADIUS_FAR)
+                move(vid, "", -1, *pose, keepRoute=0, matchThreshold=MATCH_RADIUS_FAR)
             set_speed(vid, v)
         return off_road
 

@@ -4,7 +4,7 @@ One tick (``World.tick(controls)``, dt = 0.05 s):
 
 1. validate the CAV controls (NaN/inf -> :class:`ControlError` naming the CAV; out of range -> clipped);
 2. integrate the CAVs with the kinematic bicycle model (friction from the weather);
-3. push CAVs and kinematic scenario actors into SUMO (``moveToXY(keepRoute=2)`` + ``setSpeed``) so that
+3. push CAVs and kinematic scenario actors into SUMO (``moveToXY(keepRoute=0)`` + ``setSpeed``) so that
    SUMO traffic follows, yields to and overtakes them;
 4. step SUMO (background traffic, pedestrians, lights);
 5. background activity keeps traffic dense around the CAVs (every ``update_period`` ticks);
