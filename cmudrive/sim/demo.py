@@ -187,19 +187,22 @@ class _Perception:
         at = np.flatnonzero(obs.cav_index == self.follow)
         centre = f"cav{self.follow}" if len(at) else None
         bev = renderer.render(snap, center=centre, size_m=window, routes=paths, links=links)
-        if not len(at):  # the followed CAV has finished: the map view only
-            return bev
-        i = int(at[0])
         assert obs.camera is not None and obs.occupancy is not None and obs.merged_occupancy is not None
-        partner = int(obs.partner[i])
+        if len(at):
+            i = int(at[0])
+            camera, own, merged = obs.camera[i], obs.occupancy[i : i + 1], obs.merged_occupancy[i : i + 1]
+            partner = int(obs.partner[i])
+            merged_label = f"merged with CAV {partner}" if partner >= 0 else "merged (no partner)"
+        else:  # the followed CAV has left the world: the same layout, its panels blank
+            config = self.builder.config
+            camera = np.zeros((config.camera.height, config.camera.width, 3), np.uint8)
+            own = merged = np.zeros((1, obs.occupancy.shape[1], *config.occupancy.shape), bool)
+            merged_label = "merged (CAV gone)"
         return sensor_row(
             [
-                (f"CAV {self.follow} camera", obs.camera[i]),
-                ("own occupancy", occupancy_to_rgb(obs.occupancy[i : i + 1])[0]),
-                (
-                    f"merged with CAV {partner}" if partner >= 0 else "merged (no partner)",
-                    occupancy_to_rgb(obs.merged_occupancy[i : i + 1])[0],
-                ),
+                (f"CAV {self.follow} camera", camera),
+                ("own occupancy", occupancy_to_rgb(own)[0]),
+                (merged_label, occupancy_to_rgb(merged)[0]),
                 ("BEV, V2V links", bev),
             ],
             height=SENSOR_PANEL_PX,
