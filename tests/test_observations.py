@@ -152,3 +152,14 @@ def test_partners_that_are_not_cav_indices_are_the_agents_crash() -> None:
     result = evaluate_route(ring_route(), NamesNonsense, EvalConfig(tick_cap=10, background=TRAFFIC))
     assert result.status == STATUS_AGENT_CRASHED
     assert result.error is not None and "next_partners returned float64" in result.error
+
+
+def test_camera_and_visibility_must_describe_the_same_camera() -> None:
+    import pytest
+
+    from cmudrive.bench.observe import SensorConfig
+    from cmudrive.sensors import CameraConfig, VisibilityConfig
+
+    SensorConfig(camera=CameraConfig(fov_deg=90.0), visibility=VisibilityConfig(fov_deg=90.0))
+    with pytest.raises(ValueError, match="must describe the same camera"):
+        SensorConfig(camera=CameraConfig(fov_deg=90.0))

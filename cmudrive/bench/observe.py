@@ -53,6 +53,14 @@ class SensorConfig:
     link: LinkConfig = field(default_factory=LinkConfig)
     partners: PartnerConfig = field(default_factory=PartnerConfig)
 
+    def __post_init__(self) -> None:
+        cam, vis = self.camera, self.visibility
+        if (cam.fov_deg, cam.mount_x) != (vis.fov_deg, vis.mount_x):
+            raise ValueError(
+                f"the camera (fov {cam.fov_deg} deg, {cam.mount_x} m along the heading) and the visibility "
+                f"model (fov {vis.fov_deg} deg, {vis.mount_x} m) must describe the same camera"
+            )
+
 
 def relative_poses(
     x: np.ndarray, y: np.ndarray, yaw: np.ndarray, cav_index: np.ndarray, num_cavs: int
