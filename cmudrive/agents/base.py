@@ -137,11 +137,22 @@ def check_observations(agent: Agent, provided: frozenset[Observation] = PROVIDED
         )
 
 
+# short names of the bundled agents (``cmudrive eval --agent expert``)
+BUNDLED_AGENTS: dict[str, str] = {
+    "expert": "cmudrive.agents.expert:ExpertAgent",
+    "autopilot": "cmudrive.agents.autopilot:AutopilotAgent",
+    "pid": "cmudrive.agents.pid:PidAgent",
+}
+
+
 def load_agent_class(spec: str) -> type[Agent]:
-    """``"package.module:ClassName"`` -> the class (clear errors for each way this can fail)."""
+    """``"package.module:ClassName"`` or a bundled agent's short name -> the class (clear errors for each
+    way this can fail)."""
+    spec = BUNDLED_AGENTS.get(spec, spec)
     module_name, sep, class_name = spec.partition(":")
     if not sep or not module_name or not class_name:
-        raise AgentSetupError(f"agent {spec!r} must look like 'package.module:ClassName'")
+        names = ", ".join(sorted(BUNDLED_AGENTS))
+        raise AgentSetupError(f"agent {spec!r} must look like 'package.module:ClassName' or be one of {names}")
     try:
         module = importlib.import_module(module_name)
     except ImportError as exc:

@@ -19,13 +19,17 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from cmudrive.agents.base import Agent, Observation, Observations, RouteSetup, is_turn
+from cmudrive.agents.control import (
+    LOOKAHEAD_MAX,
+    SPEED_GAINS,
+    STEER_GAINS,
+    WindowedPid,
+    heading_error,
+    lookahead_distance,
+)
 from cmudrive.sim.dynamics import Controls
 
 PATH_STEP = 0.1  # [m] spacing of the followed path
-LOOKAHEAD_A, LOOKAHEAD_B = 0.9755, 1.9153  # look-ahead index = A * v[km/h] + B, in path points
-LOOKAHEAD_MIN, LOOKAHEAD_MAX = 24, 105  # [path points] = 2.4 m .. 10.5 m
-STEER_KP, STEER_KI, STEER_KD, STEER_WINDOW = 3.118, 0.641, 1.378, 6
-SPEED_KP, SPEED_KI, SPEED_KD, SPEED_WINDOW = 1.75, 1.0, 2.0, 20
 SPEED_FACTOR = 0.8  # cruise at this share of the speed limit
 TURN_SPEED = 5.0  # [m/s] in junction turns
 TURN_PREVIEW = 25.0  # [m] slow down this far before a turn
@@ -44,7 +48,7 @@ class PidAgent(Agent):
         paths = [self._path(c.target_points) for c in route.cavs]
         n, longest = len(paths), max(len(p) for p in paths)
         self.length = np.array([len(p) for p in paths])
-        self.path = np.zeros((n, longest + LOOKAHEAD_MAX + 1, 2))
+        self.path = np.zeros((n, longest + int(LOOKAHEAD_MAX / PATH_STEP) + 1, 2))
         for i, p in enumerate(paths):
             self.path[i, : len(p)], self.path[i, len(p) :] = p, p[-1]
         # the wanted speed along each path: speed limit, turns, final stop
@@ -63,8 +67,8 @@ class PidAgent(Agent):
             limit = np.minimum(limit, np.sqrt(2.0 * STOP_DECEL * np.maximum(s[-1] - s, 0.0)))
             self.wanted[i, : len(p)] = limit
         self.progress = np.zeros(n, np.int64)
-        self.steer_errors = np.zeros((n, STEER_WINDOW))
-        self.speed_errors = np.zeros((n, SPEED_WINDOW))
+        self.steer_pid = WindowedPid(n, *STEER_GAINS)
+        self.speed_pid = WindowedPid(n, *SPEED_GAINS)
 
     @staticmethod
     def _path(points: np.ndarray) -> np.ndarray:
@@ -94,33 +98,16 @@ class PidAgent(Agent):
         d = np.linalg.norm(self.path[i[:, None], window] - pos[:, None, :], axis=-1)
         self.progress[i] = window[np.arange(len(i)), np.argmin(d, axis=1)]
         # lateral: heading error to the look-ahead point, in CARLA's sign (+ = right), scaled by 90 deg
-        ahead = np.clip(LOOKAHEAD_A * obs.speed * 3.6 + LOOKAHEAD_B, LOOKAHEAD_MIN, LOOKAHEAD_MAX).astype(
-            np.int64
-        )
+        ahead = np.round(lookahead_distance(obs.speed) / PATH_STEP).astype(np.int64)
         target = self.path[i, np.minimum(self.progress[i] + ahead, self.path.shape[1] - 1)]
-        rel = target - pos
-        fwd = rel[:, 0] * np.cos(obs.yaw) + rel[:, 1] * np.sin(obs.yaw)
-        left = -rel[:, 0] * np.sin(obs.yaw) + rel[:, 1] * np.cos(obs.yaw)
-        error = np.degrees(np.arctan2(-left, fwd)) / 90.0
-        steer = self._pid(self.steer_errors, i, error, STEER_KP, STEER_KI, STEER_KD)
+        steer = self.steer_pid(i, heading_error(pos, obs.yaw, target))
         # longitudinal
         wanted = self.wanted[i, self.progress[i]]
         speed_error = np.clip(wanted - obs.speed, 0.0, 1.0)
-        throttle = np.clip(
-            self._pid(self.speed_errors, i, speed_error, SPEED_KP, SPEED_KI, SPEED_KD), 0.0, 1.0
-        )
+        throttle = np.clip(self.speed_pid(i, speed_error), 0.0, 1.0)
         stop = wanted < BRAKE_SPEED
         over = obs.speed > OVERSPEED * np.maximum(wanted, 1e-3)
         brake = np.where(stop, 1.0, np.where(over, 0.4, 0.0))
         throttle = np.where(stop | over, 0.0, throttle)
         return Controls(steer=np.clip(steer, -1.0, 1.0), throttle=throttle, brake=brake)
 
-    @staticmethod
-    def _pid(
-        history: np.ndarray, rows: np.ndarray, error: np.ndarray, kp: float, ki: float, kd: float
-    ) -> np.ndarray:
-        """Windowed PID: integral = mean of the window, derivative = change since the last tick."""
-        previous = history[rows, -1]
-        history[rows] = np.roll(history[rows], -1, axis=1)
-        history[rows, -1] = error
-        return kp * error + ki * history[rows].mean(axis=1) + kd * (error - previous)

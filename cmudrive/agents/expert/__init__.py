@@ -4,3 +4,8 @@ Modules: ``forecast`` (short-horizon rollouts and oriented-box conflicts), ``det
 around obstacles), ``agent`` (the :class:`ExpertAgent` that combines them with IDM, lights, stop signs and
 the SimLingo controller).
 """
+
+from cmudrive.agents.expert.agent import ExpertAgent, ExpertConfig, ExpertDecision
+from cmudrive.agents.expert.rules import Reason
+
+__all__ = ["ExpertAgent", "ExpertConfig", "ExpertDecision", "Reason"]

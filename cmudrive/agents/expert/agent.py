@@ -1,0 +1,394 @@
+"""The privileged expert: one rule-based planner for every CAV of a route, batched over CAVs.
+
+Each tick, for every active CAV (``reference/MODEL_AND_EXPERT.md``, PDM-Lite):
+
+1. progress along its dense route; the path ahead (shifted sideways around obstacles by
+   :mod:`~cmudrive.agents.expert.detour` when one is in the way);
+2. the speed the road allows: ``0.72 x`` the speed limit (at most 20 m/s), a curvature cap
+   (``sqrt(a_lat / curvature)``), 17.8 m/s within 30 m of a junction, approached with a comfortable
+   deceleration;
+3. IDM toward the first actor in the path corridor (vehicles, bicycles, pedestrians, obstacles), a red or
+   yellow light at the next junction entry, a stop sign (until it has stood still at the line), and a
+   junction where it must give way to vehicles with priority;
+4. a ~2 s forecast of itself and nearby actors (:mod:`~cmudrive.agents.expert.forecast`): a predicted
+   collision with anything but the leading object stops it;
+5. anti-blocking: after ``unblock_after`` ticks standing for a forecast or a give-way, those two rules are
+   ignored for ``unblock_for`` ticks;
+6. SimLingo's lateral controller on the path; a speed controller that tracks the commanded acceleration
+   (the expert knows the vehicle model: it is privileged).
+
+Each tick's decisions are kept in :attr:`ExpertAgent.decision` (:class:`ExpertDecision`): why each CAV
+slowed down (rule, object, distance), its target speed and its planned path; the dataset turns them into
+labels.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+import numpy as np
+
+from cmudrive.agents.base import Agent, AgentSetupError, Observation, Observations, RouteSetup
+from cmudrive.agents.control import STEER_GAINS, WindowedPid, heading_error, lookahead_distance
+from cmudrive.agents.expert.plan import EntryKind, RoutePlans, build_plans
+from cmudrive.agents.expert.rules import GAPS, IdmConfig, Reason, first_in_corridor, idm, reason_of_kind
+from cmudrive.maps import RoadMap
+from cmudrive.sim.dynamics import Controls, VehicleParams
+from cmudrive.sim.snapshot import ActorKind, Role, Snapshot
+from cmudrive.sim.weather import get_weather
+
+HORIZON = 80  # [route points = m] the path ahead that is planned and checked
+PATH_OUT = 40  # [points] of the planned path kept in the decision record
+
+
+@dataclass(frozen=True)
+class ExpertConfig:
+    speed_factor: float = 0.72  # target speed = this x the speed limit (PDM-Lite)
+    max_speed: float = 20.0  # [m/s]
+    junction_cap: float = 17.8  # [m/s] within junction_cap_distance of a junction
+    junction_cap_distance: float = 30.0  # [m]
+    lateral_accel: float = 3.0  # [m/s^2] curvature speed cap
+    approach_decel: float = 2.5  # [m/s^2] to slow down for a lower allowed speed ahead
+    corridor_margin: float = 0.4  # [m] added to half the CAV's width for the corridor check
+    idm: IdmConfig = field(default_factory=IdmConfig)
+    speed_time_constant: float = 0.5  # [s] the speed controller closes a speed error in about this time
+    hold_speed: float = 0.3  # [m/s] commanded below this at low speed: hold the brake
+    stop_sign_area: float = 4.0  # [m] a stop counts with the front bumper this close to the line
+    stop_sign_ticks: int = 25  # ticks standing at the line before a stop sign is cleared
+    stop_reached: float = 1.0  # [m] within s0 + this of a stop line, a stop term commands a standstill
+    yield_reach: float = 25.0  # [m] junction give-way checked from this far before the entry
+    yield_margin: float = 3.0  # [s] a priority vehicle arriving sooner than the CAV + this: give way
+    yield_horizon: float = 7.0  # [s] priority vehicles farther than this in time are ignored
+    light_reach: float = 80.0  # [m]
+    yellow_decel: float = 4.0  # [m/s^2] a yellow light is run when stopping would need more than this
+    unblock_after: int = 170  # ticks standing for a forecast / give-way before ignoring them
+    unblock_for: int = 40  # ticks they stay ignored
+    standing_speed: float = 0.1  # [m/s]
+
+
+@dataclass(frozen=True)
+class ExpertDecision:
+    """What the expert decided at one tick, for the ``n`` active CAVs in ``cav_index`` order."""
+
+    tick: int
+    cav_index: np.ndarray  # (n,)
+    target_speed: np.ndarray  # (n,) [m/s] the speed it aims at over the next ~0.5 s
+    accel: np.ndarray  # (n,) [m/s^2] commanded acceleration
+    reason: np.ndarray  # (n,) int8 Reason that set it
+    object_row: np.ndarray  # (n,) snapshot row of the object behind the reason, -1 none
+    object_id: np.ndarray  # (n,) str actor id, "" none
+    object_kind: np.ndarray  # (n,) int8 ActorKind, -1 none (lights, signs, road)
+    distance: np.ndarray  # (n,) [m] bumper to the object / stop line, inf none
+    path: np.ndarray  # (n, PATH_OUT, 2) the planned path ahead, map frame [m], 1 m apart
+    route_index: np.ndarray  # (n,) progress along the dense route
+
+
+class ExpertAgent(Agent):
+    """PDM-Lite-like privileged expert for all CAVs of a route (see the module docstring)."""
+
+    observations: ClassVar[frozenset[Observation]] = frozenset({Observation.PRIVILEGED})
+
+    def __init__(self, config: ExpertConfig | None = None, params: VehicleParams | None = None) -> None:
+        self.config = config or ExpertConfig()
+        self.params = params or VehicleParams()
+        self.decision: ExpertDecision | None = None
+
+    def setup(self, route: RouteSetup) -> None:
+        if route.road_map is None or any(c.dense_route is None for c in route.cavs):
+            raise AgentSetupError("ExpertAgent needs the privileged set-up (map and dense routes)")
+        c = self.config
+        self.road_map: RoadMap = route.road_map
+        routes = [cav.dense_route for cav in route.cavs]
+        self.plans: RoutePlans = build_plans(
+            self.road_map,
+            routes,  # type: ignore[arg-type]
+            c.speed_factor,
+            c.max_speed,
+            c.lateral_accel,
+            c.junction_cap,
+            c.junction_cap_distance,
+        )
+        n = len(routes)
+        self.friction = get_weather(route.weather).friction
+        self.progress = np.zeros(n, np.int64)
+        self.steer_pid = WindowedPid(n, *STEER_GAINS)
+        self.stop_cleared = np.full(n, -1, np.int64)  # the last entry index whose stop sign was served
+        self.stop_ticks = np.zeros(n, np.int64)  # ticks standing at the current stop line
+        self.blocked_ticks = np.zeros(n, np.int64)
+        self.unblock_until = np.full(n, -1, np.int64)
+
+    # ------------------------------------------------------------------ tick
+    def run_step(self, obs: Observations) -> Controls:
+        snap = obs.snapshot
+        if snap is None:
+            raise AgentSetupError("ExpertAgent needs the snapshot (privileged observations)")
+        rows = self._rows(snap, obs.cav_index)
+        i = obs.cav_index
+        c, p = self.config, self.plans
+        pos = np.stack([obs.x, obs.y], axis=1)
+        v = np.maximum(obs.speed, 0.0)
+        half_len = snap.length[rows] * 0.5
+        frac = self._advance(pos, i)
+        ahead = self.progress[i][:, None] + np.arange(HORIZON)[None, :]
+        ahead = np.minimum(ahead, p.xy.shape[1] - 1)
+        path = p.xy[i[:, None], ahead]  # (n, H, 2)
+        ego_s = p.distance[i, self.progress[i]] + frac  # [m] along the route
+
+        # the speed the road allows, approached comfortably
+        along = np.maximum(np.arange(HORIZON)[None, :] - frac[:, None], 0.0)
+        allowed = p.allowed[i[:, None], ahead]
+        cruise = np.sqrt(allowed**2 + 2.0 * c.approach_decel * along).min(axis=1)
+        accel = np.clip((cruise - v) / c.speed_time_constant, -c.idm.comfort_decel, c.idm.max_accel)
+        reason = np.where(cruise < allowed[:, 0] - 0.5, Reason.ROAD, Reason.NONE).astype(np.int8)
+        reason = np.where(v > cruise + 0.5, Reason.ROAD, reason).astype(np.int8)
+        n = len(i)
+        obj_row = np.full(n, -1, np.int64)
+        obj_dist = np.full(n, np.inf)
+        unblocking = obs.tick < self.unblock_until[i]
+
+        def take(term: np.ndarray, why: int | np.ndarray, row: np.ndarray | None, dist: np.ndarray) -> None:
+            nonlocal accel, reason
+            better = term < accel
+            accel = np.where(better, term, accel)
+            reason = np.where(better, why, reason).astype(np.int8)
+            if row is not None:
+                obj_row[better] = row[better]
+            else:
+                obj_row[better] = -1
+            obj_dist[better] = dist[better]
+
+        # 1. the first actor in the corridor
+        skip = np.zeros((n, snap.num_actors), bool)
+        skip[:, ~snap.valid] = True
+        hit, hit_row = first_in_corridor(
+            path,
+            rows,
+            0.5 * snap.width[rows] + c.corridor_margin,
+            snap.x,
+            snap.y,
+            snap.yaw,
+            snap.length,
+            snap.width,
+            skip,
+            HORIZON + 10.0,
+        )
+        has = hit_row >= 0
+        if has.any():
+            k = np.flatnonzero(has)
+            r = hit_row[k]
+            gap = hit[k] - frac[k] - half_len[k]
+            seg = path[k, np.minimum(hit[k] + 1, HORIZON - 1)] - path[k, np.maximum(hit[k] - 1, 0)]
+            path_yaw = np.arctan2(seg[:, 1], seg[:, 0])
+            v_lead = np.maximum(snap.speed[r] * np.cos(snap.yaw[r] - path_yaw), 0.0)
+            why = reason_of_kind(snap.kind[r], snap.role[r] == Role.PROP)
+            v_lead = np.where(why == Reason.PEDESTRIAN, 0.0, v_lead)  # walkers are treated as standing
+            term = np.full(n, np.inf)
+            whys = np.zeros(n, np.int8)
+            for w in np.unique(why):
+                sel = why == w
+                g = GAPS[Reason(int(w))]
+                term[k[sel]] = idm(v[k[sel]], cruise[k[sel]], gap[sel], v_lead[sel], g.s0, g.headway, c.idm)
+            whys[k] = why
+            rows_full = np.full(n, -1, np.int64)
+            rows_full[k] = r
+            dist_full = np.full(n, np.inf)
+            dist_full[k] = gap
+            take(term, whys, rows_full, dist_full)
+
+        # 2. junction entries ahead: lights, stop signs, give way
+        self._junction_terms(snap, obs.tick, i, v, ego_s, half_len, cruise, unblocking, take)
+
+        # 3. forecast (added when the forecast module is wired in)
+
+        # anti-blocking: standing for a forecast or a give-way too long -> ignore them for a while
+        standing = v < c.standing_speed
+        waiting = standing & np.isin(reason, [Reason.FORECAST, Reason.YIELD])
+        self.blocked_ticks[i] = np.where(waiting, self.blocked_ticks[i] + 1, 0)
+        start = self.blocked_ticks[i] >= c.unblock_after
+        self.unblock_until[i[start]] = obs.tick + c.unblock_for
+        self.blocked_ticks[i[start]] = 0
+
+        controls = self._controls(obs, pos, v, path, frac, accel)
+        self._record(snap, obs.tick, i, v, accel, reason, obj_row, obj_dist, path)
+        return controls
+
+    # ------------------------------------------------------------------ parts
+    @staticmethod
+    def _rows(snap: Snapshot, cav_index: np.ndarray) -> np.ndarray:
+        rows, index = snap.cav_rows()
+        row_of = dict(zip(index.tolist(), rows.tolist(), strict=True))
+        return np.array([row_of[int(k)] for k in cav_index], np.int64)
+
+    def _advance(self, pos: np.ndarray, i: np.ndarray) -> np.ndarray:
+        """Move each CAV's progress to its nearest route point in a window ahead; (n,) [m] of the CAV past
+        that point along the route (its projection, clipped to [-0.5, 1])."""
+        p = self.plans
+        window = np.minimum(self.progress[i][:, None] + np.arange(30)[None, :], p.xy.shape[1] - 2)
+        d = np.linalg.norm(p.xy[i[:, None], window] - pos[:, None, :], axis=-1)
+        self.progress[i] = window[np.arange(len(i)), np.argmin(d, axis=1)]
+        here = p.xy[i, self.progress[i]]
+        nxt = p.xy[i, self.progress[i] + 1]
+        seg = nxt - here
+        seg_len2 = np.maximum((seg**2).sum(axis=1), 1e-9)
+        return np.clip(((pos - here) * seg).sum(axis=1) / np.sqrt(seg_len2), -0.5, 1.0)
+
+    def _junction_terms(
+        self,
+        snap: Snapshot,
+        tick: int,
+        i: np.ndarray,
+        v: np.ndarray,
+        ego_s: np.ndarray,
+        half_len: np.ndarray,
+        cruise: np.ndarray,
+        unblocking: np.ndarray,
+        take: object,
+    ) -> None:
+        c, p, m = self.config, self.plans, self.road_map
+        n = len(i)
+        gap_all = p.entry_distance[i] - ego_s[:, None] - half_len[:, None]  # (n, E) bumper to line
+        # entries still ahead of the front bumper (a CAV whose bumper is past the line goes on)
+        upcoming = gap_all > -0.5
+        terms = np.full(n, np.inf)
+        whys = np.zeros(n, np.int8)
+        dists = np.full(n, np.inf)
+        for a in range(n):
+            cav = int(i[a])
+            for e in np.flatnonzero(upcoming[a]):
+                gap = float(gap_all[a, e])
+                if gap > c.light_reach:
+                    break
+                kind = int(p.entry_kind[cav, e])
+                term, why = np.inf, Reason.NONE
+                if kind == EntryKind.LIGHT:
+                    state = self._signal(snap, int(p.entry_link[cav, e]))
+                    if state in ("r", "u"):
+                        why = Reason.RED_LIGHT
+                    elif state == "y" and v[a] ** 2 / (2.0 * c.yellow_decel) < gap:
+                        why = Reason.YELLOW_LIGHT
+                elif kind in (EntryKind.STOP_SIGN, EntryKind.ALLWAY_STOP) and self.stop_cleared[cav] < e:
+                    why = Reason.STOP_SIGN
+                    if v[a] < c.standing_speed and gap < c.stop_sign_area:
+                        self.stop_ticks[cav] += 1
+                        if self.stop_ticks[cav] >= c.stop_sign_ticks:
+                            self.stop_cleared[cav] = e
+                            self.stop_ticks[cav] = 0
+                            why = Reason.NONE
+                    else:
+                        self.stop_ticks[cav] = 0
+                if (
+                    why == Reason.NONE
+                    and kind in (EntryKind.YIELD, EntryKind.STOP_SIGN, EntryKind.ALLWAY_STOP)
+                    and gap < c.yield_reach
+                    and not unblocking[a]
+                    and self._must_yield(snap, int(p.entry_link[cav, e]), gap, v[a])
+                ):
+                    why = Reason.YIELD
+                if why != Reason.NONE:
+                    g = GAPS[why]
+                    if gap <= g.s0 + c.stop_reached:
+                        term = -c.idm.comfort_decel if v[a] > c.hold_speed else -c.idm.max_accel
+                    else:
+                        term = float(
+                            idm(
+                                v[a : a + 1],
+                                cruise[a : a + 1],
+                                np.array([gap]),
+                                np.zeros(1),
+                                g.s0,
+                                g.headway,
+                                c.idm,
+                            )[0]
+                        )
+                    terms[a], whys[a], dists[a] = term, why, gap
+                    break  # the nearest entry that asks for a stop decides
+        take(terms, whys, None, dists)  # type: ignore[operator]
+
+    def _signal(self, snap: Snapshot, link: int) -> str:
+        m = self.road_map
+        tls, index = int(m.link_tls[link]), int(m.link_tls_index[link])
+        if tls < 0 or index < 0 or tls >= len(snap.tls_state):
+            return "O"
+        state = str(snap.tls_state[tls])
+        return state[index] if index < len(state) else "O"
+
+    def _must_yield(self, snap: Snapshot, link: int, gap: float, v: float) -> bool:
+        """A vehicle with priority over ``link`` is in the junction on a conflicting path, or will reach it
+        before the CAV has crossed (its arrival time < the CAV's + yield_margin)."""
+        c, m = self.config, self.road_map
+        foes = m.yields_to(link)
+        if len(foes) == 0:
+            return False
+        vehicles = (snap.kind != ActorKind.PEDESTRIAN) & (snap.kind != ActorKind.PROP) & snap.valid
+        ego_time = max(gap, 0.0) / max(v, 2.0)
+        for f in foes:
+            via = int(m.link_via[f])
+            if via >= 0 and np.any(vehicles & (snap.lane == via)):
+                return True
+            src = int(m.link_from[f])
+            on = np.flatnonzero(vehicles & (snap.lane == src))
+            if len(on) == 0:
+                continue
+            end = m.pt_xy[m.lane_pt_ptr[src + 1] - 1]
+            d = np.hypot(snap.x[on] - end[0], snap.y[on] - end[1]) - 0.5 * snap.length[on]
+            t = d / np.maximum(snap.speed[on], 0.1)
+            moving = snap.speed[on] > 1.0
+            if np.any(moving & (t < min(ego_time + c.yield_margin, c.yield_horizon))):
+                return True
+        return False
+
+    def _controls(
+        self, obs: Observations, pos: np.ndarray, v: np.ndarray, path: np.ndarray, frac: np.ndarray, accel
+    ) -> Controls:
+        c, prm = self.config, self.params
+        i = obs.cav_index
+        # lateral: SimLingo's PID on the heading error to the look-ahead point (path interpolated)
+        at = np.clip(frac + lookahead_distance(v), 0.0, HORIZON - 1.001)
+        k = at.astype(np.int64)
+        t = (at - k)[:, None]
+        rows = np.arange(len(i))
+        target = (1.0 - t) * path[rows, k] + t * path[rows, k + 1]
+        steer = np.clip(self.steer_pid(i, heading_error(pos, obs.yaw, target)), -1.0, 1.0)
+        # longitudinal: the commanded acceleration through the vehicle model
+        hold = (v + accel * c.speed_time_constant < c.hold_speed) & (v < 1.0)
+        resist = prm.rolling + prm.drag * v**2
+        fade = np.maximum(1.0 - (v / prm.max_speed) ** 2, 0.05)
+        throttle = np.clip((accel + resist) / (prm.max_accel * fade), 0.0, 1.0)
+        brake = np.clip(-(accel + resist) / (prm.max_brake * self.friction), 0.0, 1.0)
+        throttle = np.where(accel + resist > 0.0, throttle, 0.0)
+        brake = np.where(accel + resist > 0.0, 0.0, brake)
+        brake = np.where(hold, 1.0, brake)
+        throttle = np.where(hold, 0.0, throttle)
+        return Controls(steer=steer, throttle=throttle, brake=brake)
+
+    def _record(
+        self,
+        snap: Snapshot,
+        tick: int,
+        i: np.ndarray,
+        v: np.ndarray,
+        accel: np.ndarray,
+        reason: np.ndarray,
+        obj_row: np.ndarray,
+        obj_dist: np.ndarray,
+        path: np.ndarray,
+    ) -> None:
+        has = obj_row >= 0
+        ids = np.full(len(i), "", dtype=object)
+        ids[has] = snap.ids[obj_row[has]]
+        kind = np.full(len(i), -1, np.int8)
+        kind[has] = snap.kind[obj_row[has]]
+        self.decision = ExpertDecision(
+            tick=tick,
+            cav_index=i.copy(),
+            target_speed=np.maximum(v + accel * self.config.speed_time_constant, 0.0),
+            accel=accel,
+            reason=reason,
+            object_row=obj_row,
+            object_id=ids.astype(str),
+            object_kind=kind,
+            distance=obj_dist,
+            path=path[:, :PATH_OUT].copy(),
+            route_index=self.progress[i].copy(),
+        )
