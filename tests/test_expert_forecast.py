@@ -185,9 +185,7 @@ def test_pedestrian_crossing_ten_metres_ahead_conflicts() -> None:
     assert 0.5 <= fc.first_conflict[0, 1] <= 1.0
 
 
-def test_standing_pedestrian_on_the_kerb_is_no_conflict_and_a_slow_walker_walks_half_a_metre_a_second() -> (
-    None
-):
+def test_standing_pedestrian_stays_and_a_slow_walker_walks_half_a_metre_per_second() -> None:
     ped = {
         "x": 10.0,
         "y": -3.2,
@@ -221,8 +219,8 @@ def turning_car(time: float, rate: float, speed: float = 6.0, radius: float = 8.
 
 
 def test_turning_car_is_forecast_on_its_arc() -> None:
-    """Ego standing at the origin; a car 8 m to the right turning left (6 m/s on an 8 m radius) sweeps
-    into it; with constant heading it would pass 8 m to the right."""
+    """Ego standing at the origin; a car 8 m ahead and 8 m to the right, heading north and turning left
+    (6 m/s on an 8 m radius), sweeps into it; with constant heading it would pass 8 m ahead."""
     forecaster = Forecaster()
     before = scene([turning_car(-DT, 0.75)], time=-DT)
     now = scene([turning_car(0.0, 0.75)], time=0.0)
