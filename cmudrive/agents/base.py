@@ -152,7 +152,9 @@ def load_agent_class(spec: str) -> type[Agent]:
     module_name, sep, class_name = spec.partition(":")
     if not sep or not module_name or not class_name:
         names = ", ".join(sorted(BUNDLED_AGENTS))
-        raise AgentSetupError(f"agent {spec!r} must look like 'package.module:ClassName' or be one of {names}")
+        raise AgentSetupError(
+            f"agent {spec!r} must look like 'package.module:ClassName' or be one of {names}"
+        )
     try:
         module = importlib.import_module(module_name)
     except ImportError as exc:

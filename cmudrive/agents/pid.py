@@ -110,4 +110,3 @@ class PidAgent(Agent):
         brake = np.where(stop, 1.0, np.where(over, 0.4, 0.0))
         throttle = np.where(stop | over, 0.0, throttle)
         return Controls(steer=np.clip(steer, -1.0, 1.0), throttle=throttle, brake=brake)
-

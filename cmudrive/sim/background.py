@@ -93,6 +93,13 @@ class BackgroundConfig:
     removal_margin: float = 30.0  # [m] actors beyond radius + margin from every active CAV are removed
     spawn_min_distance: float = 60.0  # [m] later spawns are at least this far from every active CAV
     fill_clearance: float = 15.0  # [m] the initial fill keeps this far from every CAV
+    # the initial fill leaves no vehicle behind a CAV (on its road: within fill_behind_width sideways)
+    # closer than it needs to stop from the lane's speed with fill_decel, plus fill_stop_gap: at tick 0
+    # the CAVs are not yet on SUMO's lanes, so SUMO's insertion check cannot see them, and a car inserted
+    # at the lane's speed 15 m behind a standing CAV on a highway ran into it within a second
+    fill_decel: float = 2.5  # [m/s^2]
+    fill_stop_gap: float = 10.0  # [m]
+    fill_behind_width: float = 8.0  # [m]
     spawn_spacing: float = 10.0  # [m] spacing of vehicle spawn points along a lane
     spawn_clearance: float = 15.0  # [m] no vehicle spawns this close to an actor on the same lane
     pedestrian_spacing: float = 5.0  # [m] spacing of pedestrian spawn points (and their clearance)
@@ -337,6 +344,8 @@ class BackgroundActivity:
         for actor_id, p in list(self._pending.items()):
             if actor_id in seen or actor_id not in world.sumo.actors:
                 del self._pending[actor_id]
+                if actor_id in seen and not p.person and self._speed_cap is not None:
+                    libsumo.vehicle.setMaxSpeed(actor_id, self._speed_cap)
             elif world.time - p.time > self.config.depart_timeout and (p.person or actor_id in waiting):
                 late.append(actor_id)
         if late:
@@ -453,6 +462,9 @@ class BackgroundActivity:
             True,
             rng,
         )
+        if initial:
+            keep = ~self._behind_a_cav(pts, idx, cavs)
+            idx, dist = idx[keep], dist[keep]
         types = rng.choice(len(self._types), size=want, p=self._type_p)
         counts = np.bincount(types, minlength=len(self._types))
         free = np.ones(len(idx), bool)
@@ -465,10 +477,26 @@ class BackgroundActivity:
             for j in pick.tolist():
                 self._add_vehicle(world, self._types[t], int(idx[j]), float(dist[j]), initial)
 
+    def _behind_a_cav(self, pts: SpawnPoints, idx: np.ndarray, cavs: _Cavs) -> np.ndarray:
+        """(k,) spawn points ``idx`` from which a vehicle at the lane's speed could not stop before a CAV
+        ahead of it on its road (see ``fill_decel``)."""
+        cfg, m = self.config, self._need_world().map
+        if len(idx) == 0 or len(cavs.xy) == 0:
+            return np.zeros(len(idx), bool)
+        rel = cavs.xy[None, :, :] - pts.xy[idx, None, :]  # (k, C, 2)
+        c, s = np.cos(pts.heading[idx])[:, None], np.sin(pts.heading[idx])[:, None]
+        along = rel[..., 0] * c + rel[..., 1] * s
+        across = -rel[..., 0] * s + rel[..., 1] * c
+        speed = m.lane_speed[pts.lane[idx]][:, None]
+        reach = speed**2 / (2.0 * cfg.fill_decel) + cfg.fill_stop_gap
+        same_way = np.cos(cavs.yaw[None, :] - pts.heading[idx][:, None]) > 0.5
+        return ((along > 0.0) & (along < reach) & (np.abs(across) < cfg.fill_behind_width) & same_way).any(
+            axis=1
+        )
+
     def _add_vehicle(
         self, world: World, type_name: str, point: int, cav_distance: float, initial: bool
     ) -> None:
-        import libsumo
 
         m, pts = world.map, self._veh_points
         lane = int(pts.lane[point])
@@ -490,8 +518,6 @@ class BackgroundActivity:
         except SumoError:
             self.stats["refused"] += 1
             return
-        if self._speed_cap is not None:
-            libsumo.vehicle.setMaxSpeed(vid, self._speed_cap)
         self._type_of[vid] = type_name
         length = ACTOR_TYPES[type_name].length
         self._record(world, vid, type_name, pts, point, cav_distance, initial, length, person=False)
@@ -714,6 +740,8 @@ class BackgroundActivity:
         self._speed_cap = v_mps
         for r in self._vehicles(scene).tolist():
             actor_id = scene.ids[r]
+            if actor_id in self._pending:  # not inserted yet: capped when it appears (_settle_spawns)
+                continue
             if v_mps is None:
                 type_name = self._type_of.get(actor_id) or libsumo.vehicle.getTypeID(actor_id).split("@")[0]
                 cap = ACTOR_TYPES[type_name].max_speed if type_name in ACTOR_TYPES else 1e3

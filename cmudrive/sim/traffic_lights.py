@@ -24,7 +24,8 @@ class TrafficLights:
     def __init__(self, road_map: RoadMap) -> None:
         self.map = road_map
         self.ids = [str(t) for t in road_map.tls_ids]
-        self._forced: dict[str, tuple[str, int]] = {}  # tls -> (program, phase) to restore
+        # tls -> (program, phase, seconds the phase had left, simulation time) when it was first forced
+        self._forced: dict[str, tuple[str, int, float, float]] = {}
         self._last_states: list[str] | None = None
         self._last_array = np.zeros(0, dtype=str)
 
@@ -54,9 +55,12 @@ class TrafficLights:
                 f"traffic light {tls_id}: state {state!r} has {len(state)} signals, expected {len(current)}"
             )
         if tls_id not in self._forced:
+            now = libsumo.simulation.getTime()
             self._forced[tls_id] = (
                 libsumo.trafficlight.getProgram(tls_id),
                 libsumo.trafficlight.getPhase(tls_id),
+                libsumo.trafficlight.getNextSwitch(tls_id) - now,
+                now,
             )
         libsumo.trafficlight.setRedYellowGreenState(tls_id, state)
 
@@ -83,10 +87,16 @@ class TrafficLights:
         import libsumo
 
         for tls in [tls_id] if tls_id else list(self._forced):
-            program, phase = self._forced.pop(tls, (None, 0))
-            if program is not None:
-                libsumo.trafficlight.setProgram(tls, program)
-                libsumo.trafficlight.setPhase(tls, phase)
+            if tls not in self._forced:
+                continue
+            program, phase, left, since = self._forced.pop(tls)
+            libsumo.trafficlight.setProgram(tls, program)
+            libsumo.trafficlight.setPhase(tls, phase)
+            # the phase goes on for what it had left minus the time it was overridden (at least 1 s):
+            # restarting it in full kept the other approaches red ~40 s longer, long enough for a
+            # CAV waiting there to count as blocked
+            elapsed = libsumo.simulation.getTime() - since
+            libsumo.trafficlight.setPhaseDuration(tls, max(left - elapsed, 1.0))
 
 
 def link_states(road_map: RoadMap, tls_state: np.ndarray) -> np.ndarray:

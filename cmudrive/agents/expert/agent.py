@@ -31,6 +31,7 @@ import numpy as np
 
 from cmudrive.agents.base import Agent, AgentSetupError, Observation, Observations, RouteSetup
 from cmudrive.agents.control import STEER_GAINS, WindowedPid, heading_error, lookahead_distance
+from cmudrive.agents.expert.forecast import Forecaster
 from cmudrive.agents.expert.plan import EntryKind, RoutePlans, build_plans
 from cmudrive.agents.expert.rules import GAPS, IdmConfig, Reason, first_in_corridor, idm, reason_of_kind
 from cmudrive.maps import RoadMap
@@ -117,6 +118,7 @@ class ExpertAgent(Agent):
         self.stop_ticks = np.zeros(n, np.int64)  # ticks standing at the current stop line
         self.blocked_ticks = np.zeros(n, np.int64)
         self.unblock_until = np.full(n, -1, np.int64)
+        self.forecaster = Forecaster()
 
     # ------------------------------------------------------------------ tick
     def run_step(self, obs: Observations) -> Controls:
@@ -199,7 +201,8 @@ class ExpertAgent(Agent):
         # 2. junction entries ahead: lights, stop signs, give way
         self._junction_terms(snap, obs.tick, i, v, ego_s, half_len, cruise, unblocking, take)
 
-        # 3. forecast (added when the forecast module is wired in)
+        # 3. forecast: a predicted collision with anything but the object followed above stops the CAV
+        self._forecast_term(snap, rows, i, v, path, accel, hit_row, unblocking, take)
 
         # anti-blocking: standing for a forecast or a give-way too long -> ignore them for a while
         standing = v < c.standing_speed
@@ -245,7 +248,7 @@ class ExpertAgent(Agent):
         unblocking: np.ndarray,
         take: object,
     ) -> None:
-        c, p, m = self.config, self.plans, self.road_map
+        c, p = self.config, self.plans
         n = len(i)
         gap_all = p.entry_distance[i] - ego_s[:, None] - half_len[:, None]  # (n, E) bumper to line
         # entries still ahead of the front bumper (a CAV whose bumper is past the line goes on)
@@ -304,6 +307,49 @@ class ExpertAgent(Agent):
                     terms[a], whys[a], dists[a] = term, why, gap
                     break  # the nearest entry that asks for a stop decides
         take(terms, whys, None, dists)  # type: ignore[operator]
+
+    def _forecast_term(
+        self,
+        snap: Snapshot,
+        rows: np.ndarray,
+        i: np.ndarray,
+        v: np.ndarray,
+        path: np.ndarray,
+        accel: np.ndarray,
+        followed: np.ndarray,
+        unblocking: np.ndarray,
+        take: object,
+    ) -> None:
+        """Roll every CAV along its path at the speed the other rules leave it (so a CAV stopping for a
+        light does not see the crossing traffic it will never meet) and stop it for the first predicted
+        conflict with a moving actor that is not behind it and not the object it already follows. Between
+        two CAVs the one that reaches the conflict point later yields; when both stand, the lower CAV
+        index goes first."""
+        c = self.config
+        n = len(i)
+        target = np.maximum(v + accel * c.speed_time_constant, 0.0)
+        fc = self.forecaster.forecast(snap, rows, path, v, target)
+        moving = np.abs(snap.speed) >= c.standing_speed
+        mask = ~fc.behind & moving[None, :] & snap.valid[None, :]
+        mask &= (snap.kind != ActorKind.PROP)[None, :] & (snap.role != Role.PROP)[None, :]
+        mask[np.arange(n), rows] = False
+        has_followed = followed >= 0
+        mask[np.flatnonzero(has_followed), followed[has_followed]] = False
+        mask[unblocking] = False
+        cav_rows, cav_index = snap.cav_rows()
+        if len(cav_rows) > 1:
+            other = mask[:, cav_rows]  # (n, K) CAV-CAV pairs: only the later one yields
+            ego_first = fc.ego_first[:, cav_rows]
+            both_slow = (v[:, None] < 0.5) & (np.abs(snap.speed[cav_rows])[None, :] < 0.5)
+            ego_first = np.where(both_slow, i[:, None] < cav_index[None, :], ego_first)
+            mask[:, cav_rows] = other & ~ego_first
+        row, when = fc.nearest(mask)
+        term = np.where(row >= 0, -v / np.maximum(when, c.speed_time_constant), np.inf)
+        term = np.where((row >= 0) & (v < c.hold_speed), -c.idm.max_accel, term)
+        gap = np.full(n, np.inf)
+        hit = row >= 0
+        gap[hit] = np.hypot(snap.x[row[hit]] - snap.x[rows[hit]], snap.y[row[hit]] - snap.y[rows[hit]])
+        take(term, np.full(n, Reason.FORECAST, np.int8), row, gap)  # type: ignore[operator]
 
     def _signal(self, snap: Snapshot, link: int) -> str:
         m = self.road_map

@@ -9,6 +9,7 @@ done, before it reaches the tail.
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -138,7 +139,7 @@ def _entries(road_map: RoadMap, route: Route) -> list[tuple[float, int, int, int
     out = []
     stop_of_lane = {int(lane): k for k, lane in enumerate(m.stop_lane)}
     path = route.path
-    for a, b in zip(path[:-1], path[1:], strict=False):
+    for a, b in itertools.pairwise(path):
         if m.lane_internal[a] or not m.lane_internal[b]:
             continue
         links = m.successor_links(int(a))[m.successors(int(a)) == b]

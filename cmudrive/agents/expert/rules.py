@@ -68,10 +68,18 @@ class IdmConfig:
 
 
 def idm(
-    v: np.ndarray, v0: np.ndarray, gap: np.ndarray, v_lead: np.ndarray, s0: float, headway: float, c: IdmConfig
+    v: np.ndarray,
+    v0: np.ndarray,
+    gap: np.ndarray,
+    v_lead: np.ndarray,
+    s0: float,
+    headway: float,
+    c: IdmConfig,
 ) -> np.ndarray:
     """(n,) IDM acceleration [m/s^2] toward an object ``gap`` metres ahead (bumper to object)."""
-    s_star = s0 + np.maximum(v * headway + v * (v - v_lead) / (2.0 * np.sqrt(c.max_accel * c.comfort_decel)), 0.0)
+    s_star = s0 + np.maximum(
+        v * headway + v * (v - v_lead) / (2.0 * np.sqrt(c.max_accel * c.comfort_decel)), 0.0
+    )
     free = 1.0 - (v / np.maximum(v0, 0.1)) ** c.exponent
     return c.max_accel * (free - (s_star / np.maximum(gap, 0.1)) ** 2)
 

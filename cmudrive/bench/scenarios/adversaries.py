@@ -23,7 +23,7 @@ import numpy as np
 
 from cmudrive.bench.scenarios.base import RouteProgress, Scenario
 from cmudrive.bench.scenarios.behaviours import time_to_arrival
-from cmudrive.bench.scenarios.junctions import exit_distance
+from cmudrive.bench.scenarios.junctions import FORCED_GREEN, exit_distance
 from cmudrive.bench.scenarios.params import Param
 from cmudrive.bench.scenarios.placement import LanePoint, point_xy, walk
 from cmudrive.bench.scenarios.plan import PlanItem, path, point
@@ -159,6 +159,8 @@ class OppositeVehicle(Scenario):
             if at_sink or timed or self.ev_id not in sumo.actors:
                 sumo.remove(self.ev_id)
                 self.gone = True
+        if self.red_light and (self.gone or self.time - self.activated_at >= 2 * FORCED_GREEN):
+            self.world.lights.release()  # CAVs on the other approaches wait no longer (a no-op once released)
         driven = np.array([r.distance[k] for r, k in zip(self.ctx.routes, progress.index, strict=True)])
         self.passed |= driven >= self.goal
         return self.gone and bool(np.all(self.passed[self.running_charged()]))

@@ -8,7 +8,8 @@ of way ignored, no lane changes) runs from the bike-lane point nearest ``start_a
 U[``source_dist_interval``] m; pre-filled at activation outside the junction. The bike lane must cross
 CAV 0's first junction past T. At activation that junction is cleared of background traffic; if CAV 0's
 approach has a traffic light: 5 s with every signal of its light red, then CAV 0's approach green and every
-other signal red until the end; lights released at the end. End: the charged CAVs left that junction
+other signal red for up to ``FORCED_GREEN`` s (then, or at the end, the light's program resumes). End: the
+charged CAVs left that junction
 (along their own routes), or ST240. ``end_actor_flow`` is read and unused, as upstream.
 
 A map without bike lanes (CARLA's Town01-07) has no place for the scenario: setup raises a ScenarioError
@@ -24,7 +25,7 @@ import numpy as np
 
 from cmudrive.bench.scenarios.base import RouteProgress, Scenario
 from cmudrive.bench.scenarios.flows import VehicleFlow
-from cmudrive.bench.scenarios.junctions import LIGHT_PHASE, exit_distance
+from cmudrive.bench.scenarios.junctions import FORCED_GREEN, LIGHT_PHASE, exit_distance
 from cmudrive.bench.scenarios.params import Param
 from cmudrive.bench.scenarios.placement import LanePoint
 from cmudrive.bench.scenarios.plan import PlanItem, path
@@ -118,10 +119,14 @@ class CrossingBicycleFlow(Scenario):
     def on_update(self, snap: Snapshot, progress: RouteProgress) -> bool:
         self.flow.update(snap)
         if self.signalized:
-            k = 0 if self.time - self.activated_at < LIGHT_PHASE else 1
+            elapsed = self.time - self.activated_at
+            k = 0 if elapsed < LIGHT_PHASE else 1 if elapsed < LIGHT_PHASE + FORCED_GREEN else 2
             if k != self.light_phase:
-                ego, others = self.PHASES[k]
-                self.world.lights.force_lanes([self.ego_lane], ego, others)
+                if k == 2:
+                    self.world.lights.release()
+                else:
+                    ego, others = self.PHASES[k]
+                    self.world.lights.force_lanes([self.ego_lane], ego, others)
                 self.light_phase = k
         driven = np.array([r.distance[k] for r, k in zip(self.ctx.routes, progress.index, strict=True)])
         self.passed |= driven >= self.goal

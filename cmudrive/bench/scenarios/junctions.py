@@ -41,6 +41,10 @@ from cmudrive.sim.snapshot import Snapshot
 AFTER_JUNCTION = 10.0  # [m] driven past the junction exit
 DRIVE_COUNTER = 200.0  # [m] SequentialLaneChange, T_Junction
 LIGHT_PHASE = 5.0  # [s] each forced light phase
+# [s] the longest a scenario holds a forced green (with every other signal of the light red) before the
+# light's program resumes: with several CAVs, a CAV on another approach that the scenario also charges
+# would otherwise wait at the forced red until the scenario's 240 s timeout (blocked after 60 s)
+FORCED_GREEN = 15.0
 
 
 def exit_distance(route_xy: np.ndarray, in_junction: np.ndarray, distance: np.ndarray, k0: int) -> float:

@@ -14,8 +14,8 @@ CAV 0's route turns at its first junction past T (left or right, as the type say
 
 with gaps U[``source_dist_interval``] m; the junction is cleared of background traffic at activation.
 The signalized types force the lights: 5 s CAV 0's approach red and the flow's approach green (every
-other signal red), then both green until the end, then released. End: the charged CAVs drove 10 m past
-the junction, or the 240 s timeout.
+other signal red), then both green for up to ``FORCED_GREEN`` s, then released. End: the charged CAVs
+drove 10 m past the junction, or the 240 s timeout.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ import numpy as np
 
 from cmudrive.bench.scenarios.base import RouteProgress, Scenario
 from cmudrive.bench.scenarios.flows import VehicleFlow
-from cmudrive.bench.scenarios.junctions import AFTER_JUNCTION, LIGHT_PHASE, exit_distance
+from cmudrive.bench.scenarios.junctions import AFTER_JUNCTION, FORCED_GREEN, LIGHT_PHASE, exit_distance
 from cmudrive.bench.scenarios.params import Param
 from cmudrive.bench.scenarios.placement import LanePoint, walk
 from cmudrive.bench.scenarios.plan import PlanItem, path
@@ -134,11 +134,15 @@ class JunctionTurnFlow(Scenario):
         if self.flow is not None:
             self.flow.update(snap)
         if self.signalized:
-            k = 0 if self.time - self.activated_at < LIGHT_PHASE else 1
+            elapsed = self.time - self.activated_at
+            k = 0 if elapsed < LIGHT_PHASE else 1 if elapsed < LIGHT_PHASE + FORCED_GREEN else 2
             if k != self.light_phase:
                 lights = self.world.lights
-                lights.force_lanes([self.flow_lane], "G", others="r")
-                lights.force_lanes([self.ego_lane], "r" if k == 0 else "G")
+                if k == 2:
+                    lights.release()
+                else:
+                    lights.force_lanes([self.flow_lane], "G", others="r")
+                    lights.force_lanes([self.ego_lane], "r" if k == 0 else "G")
                 self.light_phase = k
         driven = np.array([r.distance[k] for r, k in zip(self.ctx.routes, progress.index, strict=True)])
         self.passed |= driven >= self.goal
