@@ -348,12 +348,14 @@ class DetourPlanner:
         """(k,) bool: a moving vehicle is in front of the candidate within ``queue_gap``, in its band."""
         cfg = self.cfg
         moving = (np.abs(snap.speed[p.row]) > cfg.moving_speed) & (snap.kind[p.row] != ActorKind.PEDESTRIAN)
-        moving &= p.cos > 0.5
+        c, q = np.flatnonzero(cand), np.flatnonzero(moving & (p.cos > 0.5))
         out = np.zeros(len(p.row), bool)
-        for a in np.flatnonzero(cand).tolist():
-            gap = (p.s - p.half_lon) - (p.s[a] + p.half_lon[a])
-            band = np.abs(p.d - p.d[a]) < p.half_lat + p.half_lat[a]
-            out[a] = bool(np.any(moving & (p.cav == p.cav[a]) & band & (gap > -0.5) & (gap < cfg.queue_gap)))
+        if len(q) == 0:
+            return out
+        gap = (p.s[q] - p.half_lon[q])[None, :] - (p.s[c] + p.half_lon[c])[:, None]  # (m, q) [m]
+        band = np.abs(p.d[q][None, :] - p.d[c][:, None]) < p.half_lat[q][None, :] + p.half_lat[c][:, None]
+        same = p.cav[q][None, :] == p.cav[c][:, None]
+        out[c] = np.any(same & band & (gap > -0.5) & (gap < cfg.queue_gap), axis=1)
         return out
 
     def _invaders(self, snap: Snapshot, p: _Pairs, ego: _Egos) -> np.ndarray:
