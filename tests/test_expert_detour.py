@@ -214,18 +214,19 @@ def test_no_room_no_shift() -> None:
 
 # ------------------------------------------------------------------ two-way road: the oncoming lane
 def test_two_ways_waits_for_the_oncoming_car_then_passes() -> None:
-    """ParkedObstacleTwoWays: an oncoming car 40 m away at 10 m/s keeps the CAV waiting (it stops 1 m
-    into the ramp); without it the CAV passes through the oncoming lane, just far enough."""
+    """ParkedObstacleTwoWays: an oncoming car 40 m away at 10 m/s keeps the CAV waiting, straight in its
+    lane, at the start of the ramp; without it the CAV passes through the oncoming lane, just far enough."""
     scene = Scene(*TWO_WAY)
     w = scene.width
     car = Actor(CAV_S + 30.0, -0.35 * w)
     oncoming = Actor(CAV_S + 40.0, w, 10.0, yaw=np.pi)
     _, _, out = scene.run([car, oncoming])
     assert out.waiting[0] and out.reason[0] == DetourReason.ONCOMING_LANE
-    assert out.traffic[0].tolist() == [2]
+    assert out.traffic[0].tolist() == [2] and out.actors[0].tolist() == [1]
+    assert not out.offset.any()
     ramp_start = car.s - 2.25 - 2.445 - 1.0 - 8.0
-    assert out.stop_distance[0] == pytest.approx(ramp_start + 1.0 - CAV_S, abs=0.05)
-    assert scene.route.distance[out.stop_index[0]] >= ramp_start + 1.0 - 5.0 - 1.0
+    assert out.stop_distance[0] == pytest.approx(ramp_start - CAV_S, abs=0.05)
+    assert abs(scene.route.distance[out.stop_index[0]] - (ramp_start - 5.0)) < 1.0  # route starts at 5 m
     _, _, out = scene.run([car])
     assert not out.waiting[0] and out.reason[0] == DetourReason.ONCOMING_LANE
     assert plateau(out.offset[0]) == pytest.approx(-0.35 * w + 0.925 + 1.05 + 0.6, abs=0.05)
@@ -234,17 +235,29 @@ def test_two_ways_waits_for_the_oncoming_car_then_passes() -> None:
     assert not out.waiting[0]
 
 
-def test_once_committed_the_shift_is_kept() -> None:
-    """The CAV entered the ramp with the lane clear; an oncoming car appearing then does not stop it."""
+def test_once_out_of_its_lane_the_shift_is_kept() -> None:
+    """The CAV entered the ramp with the lane clear. An oncoming car appearing while its side is still in
+    its lane stops it (the path back in lane); once its side is over the line, it goes on."""
     scene = Scene(*TWO_WAY)
     w = scene.width
     car = Actor(CAV_S + 30.0, -0.35 * w)
-    planner, _, out = scene.run([car], cav_s=CAV_S)
     ramp_start = car.s - 2.25 - 2.445 - 1.0 - 8.0
-    _, _, out = scene.run([car], ticks=(2.0,), cav_s=ramp_start + 2.0, planner=planner)
-    assert planner.held[0]
     oncoming = Actor(ramp_start + 40.0, w, 10.0, yaw=np.pi)
-    _, _, out = scene.run([car, oncoming], ticks=(2.1,), cav_s=ramp_start + 2.5, planner=planner)
+
+    def drive_to(s_end: float) -> DetourPlanner:
+        planner, _, _ = scene.run([car], cav_s=CAV_S)
+        for k, s in enumerate(np.arange(ramp_start - 1.0, s_end + 0.01, 0.5)):
+            scene.run([car], ticks=(2.0 + 0.05 * k,), cav_s=float(s), planner=planner)
+        return planner
+
+    planner = drive_to(ramp_start + 1.0)
+    assert planner.held[0]
+    _, _, out = scene.run([car, oncoming], ticks=(9.0,), cav_s=ramp_start + 1.5, planner=planner)
+    assert out.waiting[0] and not planner.held[0] and not out.offset.any()
+
+    planner = drive_to(ramp_start + 6.0)
+    assert planner.held[0]
+    _, _, out = scene.run([car, oncoming], ticks=(9.0,), cav_s=ramp_start + 6.5, planner=planner)
     assert not out.waiting[0] and out.offset[0].max() > 1.0
     # past the car the shift ramps back down and is forgotten
     _, _, out = scene.run([], ticks=(5.0,), cav_s=car.s + 20.0, planner=planner)

@@ -17,10 +17,12 @@ obstacle            within ``look_ahead`` m ahead and reaching into the CAV's co
                     moves just enough to pass with ``margin`` (to the lane centre when it would squeeze a
                     same-direction neighbour lane's traffic, ``full_lane_change``), on the side away from the
                     obstacle where the road has room, with ``transition`` m ramps (10.5 m around cones);
-                    a shift into traffic waits until that lane is clear (oncoming: clear over the pass
-                    with ``clear_margin`` and +``clear_extra_time``, at the vehicles' speeds; same
-                    direction: nothing approaching from behind), and once begun it is kept until past
-                    the obstacle
+                    a shift into traffic waits (at the start of its ramp, path unshifted) until that
+                    lane is clear (oncoming: clear over the pass with ``clear_margin`` and
+                    +``clear_extra_time``, at the vehicles' speeds; same direction: nothing
+                    approaching from behind), and once the CAV's side has left its
+                    lane it is kept until past the obstacle (before that, traffic that appears, such
+                    as a flow car spawned ahead, still stops it)
 invading vehicle    an oncoming vehicle over the centre line (InvadingTurn): right, within the CAV's lane
                     and a parking lane or shoulder beside it, to keep ``invading_margin``
 emergency vehicle   a siren in the CAV's lane behind it (YieldToEmergencyVehicle): into a same-direction
@@ -34,7 +36,8 @@ Nothing is shifted inside junctions (internal lanes have no neighbours).
 
 A shift is a :class:`_Segment` in route distance: ramp up from s0 to p0, plateau to p1, ramp down to s1
 (cosine profile). Segments of one side that overlap merge; a segment the CAV has entered with a clear lane
-is *committed* and held until the CAV passed its end, whatever the detection says later.
+is *committed* and held until the CAV passed its end, whatever the detection says later (a shift into
+traffic is checked again until the CAV's side has left its lane).
 """
 
 from __future__ import annotations
@@ -102,7 +105,7 @@ class DetourConfig:
     yield_distance: float = 80.0  # [m] an emergency vehicle this close behind is yielded to
     yield_transition_time: float = 1.5  # [s] ramp length when yielding = max(transition, this x speed)
     yield_hold: float = 15.0  # [m] full shift at least this far ahead while the vehicle is behind
-    stop_after_start: float = 1.0  # [m] a waiting CAV stops this far past the start of the ramp
+    stop_before_start: float = 0.0  # [m] a waiting CAV's centre stops this far before the ramp starts
 
     def __post_init__(self) -> None:
         if self.horizon < 2 or self.transition <= 0.0 or self.min_transition <= 0.0:
@@ -114,9 +117,11 @@ class Detour:
     """The shift of ``n`` CAVs (in the order of ``cav_index`` given to :meth:`DetourPlanner.update`)."""
 
     offset: np.ndarray  # (n, H) float64 lateral offset [m, + left] at route points progress + 0..H-1
-    waiting: np.ndarray  # (n,) bool: hold before the obstacle, the lane to borrow is not clear
-    stop_index: np.ndarray  # (n,) int64 route index to stop at when waiting, else -1
-    stop_distance: np.ndarray  # (n,) float64 [m] route distance from the CAV to that point, inf when none
+    # (n,) bool: hold before the obstacle, the lane to borrow is not clear; the offset then leaves that
+    # shift out (the CAV waits straight in its lane, not angled into the traffic it waits for)
+    waiting: np.ndarray
+    stop_index: np.ndarray  # (n,) int64 route index where the CAV's centre should stop when waiting, else -1
+    stop_distance: np.ndarray  # (n,) float64 [m] route distance from the CAV's centre to it, inf when none
     reason: np.ndarray  # (n,) int8 DetourReason of the strongest shift (or BLOCKED)
     actors: tuple[np.ndarray, ...]  # n x (k,) int64 snapshot rows the shift goes around / yields to
     traffic: tuple[np.ndarray, ...]  # n x (k,) int64 snapshot rows that keep the borrowed lane busy
@@ -265,11 +270,7 @@ class DetourPlanner:
                 v = seg.at(s_pts)
                 left, right = np.maximum(left, v), np.minimum(right, v)
             offset[c] = left + right
-            strongest = max(plan.segments, key=lambda g: abs(g.amp), default=None)
-            if plan.blocked:
-                reason[c] = DetourReason.BLOCKED
-            elif strongest is not None:
-                reason[c] = strongest.reason
+            reason[c] = plan.reason
             actors[c], traffic[c] = plan.rows, plan.busy
             if plan.stop_s is not None:
                 waiting[c] = True
@@ -400,21 +401,29 @@ class DetourPlanner:
         stop_s: float | None = None
         busy: list[np.ndarray] = []
         keep: list[_Segment] = []
+        waiting: list[_Segment] = []
         for seg in _merge(self.held[i] + fresh):
-            if not seg.committed and seg.borrow != Borrow.NONE:
+            # a shift begun is kept once the CAV's side left its lane; until then traffic can still stop it
+            in_lane = abs(float(seg.at(np.array([s_ego]))[0])) + ego.half_width < self.half[i, k_ego]
+            if seg.borrow != Borrow.NONE and (not seg.committed or in_lane):
                 rows = self._traffic(snap, seg, me, i, k_ego, ego, v_e)
                 if len(rows):
                     busy.append(rows)
+                    seg.committed = False
                     if seg.reason == DetourReason.EMERGENCY:
                         continue  # no gap to yield into: stay in lane (stopping would block the vehicle)
                     stop_s = seg.stop_at if stop_s is None else min(stop_s, seg.stop_at)
-                    keep.append(seg)
+                    waiting.append(seg)  # the path stays in lane: the CAV waits straight behind it
                     continue
             seg.committed |= s_ego >= seg.s0
             keep.append(seg)
         self.held[i] = [g for g in keep if g.committed and g.s1 > s_ego]
-        rows = np.unique(np.concatenate([g.rows for g in keep] or [_NO_ROWS]))
-        return _Plan(keep, blocked, rows, stop_s, np.unique(np.concatenate(busy or [_NO_ROWS])))
+        rows = np.unique(np.concatenate([g.rows for g in keep + waiting] or [_NO_ROWS]))
+        reason = max((g.reason for g in keep + waiting), key=int, default=DetourReason.NONE)
+        if blocked:
+            reason = DetourReason.BLOCKED
+        busy_rows = np.unique(np.concatenate(busy or [_NO_ROWS]))
+        return _Plan(keep, reason, rows, stop_s, busy_rows)
 
     def _obstacle_segments(self, snap: Snapshot, p: _Pairs, i: int, ego: _Ego) -> tuple[list[_Segment], bool]:
         """One segment per group of obstacles whose shifts overlap; True when a group cannot be passed."""
@@ -436,7 +445,7 @@ class DetourPlanner:
             p0 = float(np.min(p.s[ga] - p.half_lon[ga])) - ego.half_len - cfg.buffer
             p1 = float(np.max(p.s[ga] + p.half_lon[ga])) + ego.half_len + cfg.buffer
             s0 = p0 - trans
-            stop_at = s0 + cfg.stop_after_start
+            stop_at = s0 - cfg.stop_before_start
             if s0 < ego.s:  # found late, or the CAV waited at the ramp: ramp from where the CAV is
                 s0, p0 = ego.s, max(p0, ego.s + cfg.min_transition)
             need_left = float(np.max(p.d[ga] + p.half_lat[ga])) + ego.half_width + cfg.margin
@@ -632,8 +641,8 @@ class _Egos:
 
 @dataclass(frozen=True)
 class _Plan:
-    segments: list[_Segment]
-    blocked: bool
+    segments: list[_Segment]  # the shifts the path follows now
+    reason: DetourReason
     rows: np.ndarray  # snapshot rows the segments are for
     stop_s: float | None  # [m] route distance to stop at, None when not waiting
     busy: np.ndarray  # snapshot rows that keep a borrowed lane busy
