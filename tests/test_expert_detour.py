@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from cmudrive.agents import Agent, Observation, Observations, RouteSetup
-from cmudrive.agents.expert.detour import DetourConfig, DetourPlanner, DetourReason
+from cmudrive.agents.expert.detour import Detour, DetourConfig, DetourPlanner, DetourReason
 from cmudrive.bench import RouteSpec
 from cmudrive.maps import RoadMap, Route, RoutePlanner, load_map
 from cmudrive.maps.routing import LanePos
@@ -92,14 +92,15 @@ class Scene:
         ticks: tuple[float, ...] = (0.0, 1.5),
         cav_s: float = CAV_S,
         planner: DetourPlanner | None = None,
-    ) -> tuple[DetourPlanner, np.ndarray, object]:
-        """Updates at each time (the standing clock starts at the first); the last result, and the route
-        distance [m] of each offset point."""
+    ) -> tuple[DetourPlanner, np.ndarray, Detour]:
+        """Updates at each time (the standing clock starts at the first): the planner, the lane arc length
+        [m] of each offset point, and the last result."""
         planner = planner or DetourPlanner(self.map, [self.route], config)
         k = self.progress(cav_s)
         out = None
         for t in ticks:
             out = planner.update(self.snapshot(t, actors, cav_s), np.array([0]), np.array([0]), np.array([k]))
+        assert out is not None
         s_pts = self.route.distance[k : k + planner.cfg.horizon]
         return planner, s_pts - self.route.distance[k] + cav_s, out
 
@@ -297,13 +298,13 @@ def test_yield_to_an_emergency_vehicle_from_behind() -> None:
     """A siren 30 m behind in the CAV's lane: the CAV moves into the left lane; not while a car is
     beside it there."""
     scene = Scene(*ONE_WAY)
-    ev = Actor(CAV_S + 2.0 - 30.0, 0.0, 25.0, ActorKind.EMERGENCY, length=6.2, width=2.3, siren=True)
-    ev.s = CAV_S + 30.0 - 60.0 + 2.0
+    ev = Actor(CAV_S, 0.0, 25.0, ActorKind.EMERGENCY, length=6.2, width=2.3, siren=True)  # 30 m behind
     _, _, out = scene.run([ev], ticks=(0.0,), cav_s=CAV_S + 30.0)
     assert out.reason[0] == DetourReason.EMERGENCY and plateau(out.offset[0]) == pytest.approx(3.5)
     beside = Actor(CAV_S + 29.0, scene.width, 10.0, role=Role.BACKGROUND)
     _, _, out = scene.run([ev, beside], ticks=(0.0,), cav_s=CAV_S + 30.0)
     assert not out.offset.any() and not out.waiting[0]
+    assert out.reason[0] == DetourReason.EMERGENCY and out.traffic[0].tolist() == [2]
 
 
 # ------------------------------------------------------------------ cost
@@ -424,9 +425,9 @@ def closed_loop(
     town: str,
     lane: str,
     tmp_path: Path,
+    params: dict[str, object],
     background: bool = False,
     trigger_s: float = 20.0,
-    **params: object,
 ) -> tuple[RoadMap, object, object]:
     """CAV 0 follows one lane from 10 m to 200 m with the follower; the scenario triggers at
     ``trigger_s``."""
@@ -469,7 +470,7 @@ def test_closed_loop_the_cav_passes_the_obstacle_without_contact(
     params: dict[str, object] = {"distance": "40"}
     if kind.endswith("TwoWays"):
         params["frequency"] = {"from": "40", "to": "60"}
-    m, result, log = closed_loop(kind, town, lane, tmp_path, **params)
+    m, result, log = closed_loop(kind, town, lane, tmp_path, params)
     assert contacts(result) == []
     assert result.cavs[0].route_completion == pytest.approx(100.0)  # type: ignore[attr-defined]
     s_obstacle, _ = frenet(m, lane, track(log, first)[0, :2])  # type: ignore[arg-type]
@@ -484,8 +485,8 @@ def test_closed_loop_waits_for_oncoming_traffic(tmp_path: Path) -> None:
     stands at the start of the ramp until a gap opens, then passes without contact."""
     from tests.scenario_helpers import cav_track, frenet
 
-    params = {"distance": "40", "frequency": {"from": "20", "to": "40"}}
-    m, result, log = closed_loop("ParkedObstacleTwoWays", *TWO_WAY, tmp_path, background=True, **params)
+    params: dict[str, object] = {"distance": "40", "frequency": {"from": "20", "to": "40"}}
+    m, result, log = closed_loop("ParkedObstacleTwoWays", *TWO_WAY, tmp_path, params, background=True)
     assert contacts(result) == []
     assert result.cavs[0].route_completion == pytest.approx(100.0)  # type: ignore[attr-defined]
     tr = cav_track(log, 0)  # type: ignore[arg-type]
@@ -501,7 +502,9 @@ def test_closed_loop_yields_to_the_emergency_vehicle(tmp_path: Path) -> None:
     no failure to yield, no contact."""
     from tests.scenario_helpers import cav_track, frenet
 
-    m, result, log = closed_loop("YieldToEmergencyVehicle", *ONE_WAY, tmp_path, trigger_s=60.0, distance="40")
+    m, result, log = closed_loop(
+        "YieldToEmergencyVehicle", *ONE_WAY, tmp_path, {"distance": "40"}, trigger_s=60.0
+    )
     cav = result.cavs[0]  # type: ignore[attr-defined]
     assert cav.infractions["yield_emergency_vehicle_infractions"] == [] and contacts(result) == []
     _, d = frenet(m, ONE_WAY[1], cav_track(log, 0)[:, :2])  # type: ignore[arg-type]
@@ -512,7 +515,7 @@ def test_closed_loop_keeps_right_of_invading_cars(tmp_path: Path) -> None:
     """InvadingTurn (offset 0.3 m): the CAV keeps right and meets the invading cars without contact."""
     from tests.scenario_helpers import cav_track, frenet
 
-    m, result, log = closed_loop("InvadingTurn", *TWO_WAY, tmp_path, distance="40", offset="0.3")
+    m, result, log = closed_loop("InvadingTurn", *TWO_WAY, tmp_path, {"distance": "40", "offset": "0.3"})
     assert contacts(result) == []
     _, d = frenet(m, TWO_WAY[1], cav_track(log, 0)[:, :2])  # type: ignore[arg-type]
     assert np.nanmin(d) < -0.3

@@ -410,10 +410,9 @@ class DetourPlanner:
                 if len(rows):
                     busy.append(rows)
                     seg.committed = False
-                    if seg.reason == DetourReason.EMERGENCY:
-                        continue  # no gap to yield into: stay in lane (stopping would block the vehicle)
-                    stop_s = seg.stop_at if stop_s is None else min(stop_s, seg.stop_at)
                     waiting.append(seg)  # the path stays in lane: the CAV waits straight behind it
+                    if seg.reason != DetourReason.EMERGENCY:  # no gap to yield into: drive on in lane
+                        stop_s = seg.stop_at if stop_s is None else min(stop_s, seg.stop_at)
                     continue
             seg.committed |= s_ego >= seg.s0
             keep.append(seg)
