@@ -31,6 +31,7 @@ import numpy as np
 
 from cmudrive.agents.base import Agent, AgentSetupError, Observation, Observations, RouteSetup
 from cmudrive.agents.control import STEER_GAINS, WindowedPid, heading_error, lookahead_distance
+from cmudrive.agents.expert.detour import DetourPlanner, DetourReason
 from cmudrive.agents.expert.forecast import Forecaster
 from cmudrive.agents.expert.plan import EntryKind, RoutePlans, build_plans
 from cmudrive.agents.expert.rules import GAPS, IdmConfig, Reason, first_in_corridor, idm, reason_of_kind
@@ -62,6 +63,7 @@ class ExpertConfig:
     yield_margin: float = 3.0  # [s] a priority vehicle arriving sooner than the CAV + this: give way
     yield_horizon: float = 7.0  # [s] priority vehicles farther than this in time are ignored
     light_reach: float = 80.0  # [m]
+    overtake_speed: float = 50.0 / 3.6  # [m/s] at most while passing through the oncoming lane
     yellow_decel: float = 4.0  # [m/s^2] a yellow light is run when stopping would need more than this
     unblock_after: int = 170  # ticks standing for a forecast / give-way before ignoring them
     unblock_for: int = 40  # ticks they stay ignored
@@ -119,6 +121,7 @@ class ExpertAgent(Agent):
         self.blocked_ticks = np.zeros(n, np.int64)
         self.unblock_until = np.full(n, -1, np.int64)
         self.forecaster = Forecaster()
+        self.detour = DetourPlanner(self.road_map, routes)  # type: ignore[arg-type]
 
     # ------------------------------------------------------------------ tick
     def run_step(self, obs: Observations) -> Controls:
@@ -134,13 +137,18 @@ class ExpertAgent(Agent):
         frac = self._advance(pos, i)
         ahead = self.progress[i][:, None] + np.arange(HORIZON)[None, :]
         ahead = np.minimum(ahead, p.xy.shape[1] - 1)
-        path = p.xy[i[:, None], ahead]  # (n, H, 2)
+        det = self.detour.update(snap, rows, i, self.progress[i])
+        h = p.heading[i[:, None], ahead]
+        normal = np.stack([-np.sin(h), np.cos(h)], axis=-1)
+        path = p.xy[i[:, None], ahead] + det.offset[..., None] * normal  # (n, H, 2) shifted around obstacles
         ego_s = p.distance[i, self.progress[i]] + frac  # [m] along the route
 
         # the speed the road allows, approached comfortably
         along = np.maximum(np.arange(HORIZON)[None, :] - frac[:, None], 0.0)
         allowed = p.allowed[i[:, None], ahead]
         cruise = np.sqrt(allowed**2 + 2.0 * c.approach_decel * along).min(axis=1)
+        passing = (det.reason == DetourReason.ONCOMING_LANE) & (np.abs(det.offset).max(axis=1) > 0.1)
+        cruise = np.where(passing, np.minimum(cruise, c.overtake_speed), cruise)
         accel = np.clip((cruise - v) / c.speed_time_constant, -c.idm.comfort_decel, c.idm.max_accel)
         reason = np.where(cruise < allowed[:, 0] - 0.5, Reason.ROAD, Reason.NONE).astype(np.int8)
         reason = np.where(v > cruise + 0.5, Reason.ROAD, reason).astype(np.int8)
@@ -198,11 +206,20 @@ class ExpertAgent(Agent):
             dist_full[k] = gap
             take(term, whys, rows_full, dist_full)
 
-        # 2. junction entries ahead: lights, stop signs, give way
+        # 2. waiting for a gap before going around an obstacle: stop the centre at the detour's stop point
+        if det.waiting.any():
+            g = GAPS[Reason.DETOUR_WAIT]
+            gap = det.stop_distance + g.s0
+            term = np.where(det.waiting, idm(v, cruise, gap, np.zeros(n), g.s0, g.headway, c.idm), np.inf)
+            term = np.where(det.waiting & (det.stop_distance < c.stop_reached), -c.idm.max_accel, term)
+            take(term, np.full(n, Reason.DETOUR_WAIT, np.int8), None, det.stop_distance)
+
+        # 3. junction entries ahead: lights, stop signs, give way
         self._junction_terms(snap, obs.tick, i, v, ego_s, half_len, cruise, unblocking, take)
 
-        # 3. forecast: a predicted collision with anything but the object followed above stops the CAV
-        self._forecast_term(snap, rows, i, v, path, accel, hit_row, unblocking, take)
+        # 4. forecast: a predicted collision with anything but the object followed above stops the CAV
+        around = [np.concatenate([a, t]) for a, t in zip(det.actors, det.traffic, strict=True)]
+        self._forecast_term(snap, rows, i, v, path, accel, hit_row, around, unblocking, take)
 
         # anti-blocking: standing for a forecast or a give-way too long -> ignore them for a while
         standing = v < c.standing_speed
@@ -317,6 +334,7 @@ class ExpertAgent(Agent):
         path: np.ndarray,
         accel: np.ndarray,
         followed: np.ndarray,
+        around: list[np.ndarray],
         unblocking: np.ndarray,
         take: object,
     ) -> None:
@@ -335,6 +353,8 @@ class ExpertAgent(Agent):
         mask[np.arange(n), rows] = False
         has_followed = followed >= 0
         mask[np.flatnonzero(has_followed), followed[has_followed]] = False
+        for a, rows_around in enumerate(around):  # what the detour goes around or waited for
+            mask[a, rows_around] = False
         mask[unblocking] = False
         cav_rows, cav_index = snap.cav_rows()
         if len(cav_rows) > 1:

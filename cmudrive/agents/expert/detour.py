@@ -141,6 +141,8 @@ class _Segment:
     committed: bool = False
     rows: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # snapshot rows it is for
     stop_at: float = -np.inf  # [m] where a CAV waiting for a clear lane stops (route distance)
+    # actor ids of ``rows`` while the segment is held between ticks (rows change as actors come and go)
+    ids: np.ndarray = field(default_factory=lambda: np.zeros(0, str))
 
     def at(self, s: np.ndarray) -> np.ndarray:
         up = _smooth((s - self.s0) / max(self.p0 - self.s0, 1e-6))
@@ -391,6 +393,8 @@ class DetourPlanner:
         v_e = max(float(snap.speed[me]), 0.0)
         fresh: list[_Segment] = []
         blocked = False
+        for held in self.held[i]:  # held rows refer to an older snapshot: find their actors again
+            held.rows = np.flatnonzero(np.isin(snap.ids, held.ids)).astype(np.int64)
         if obstacle.any():
             fresh_obstacles, blocked = self._obstacle_segments(snap, p.subset(obstacle), i, ego)
             fresh += fresh_obstacles
@@ -417,6 +421,8 @@ class DetourPlanner:
             seg.committed |= s_ego >= seg.s0
             keep.append(seg)
         self.held[i] = [g for g in keep if g.committed and g.s1 > s_ego]
+        for g in self.held[i]:
+            g.ids = snap.ids[g.rows]
         rows = np.unique(np.concatenate([g.rows for g in keep + waiting] or [_NO_ROWS]))
         reason = max((g.reason for g in keep + waiting), key=int, default=DetourReason.NONE)
         if blocked:

@@ -56,7 +56,7 @@ GAPS: dict[Reason, IdmGap] = {
     Reason.STOP_SIGN: IdmGap(2.0, 0.1),
     Reason.YIELD: IdmGap(2.0, 0.1),
     Reason.FORECAST: IdmGap(2.0, 0.1),
-    Reason.DETOUR_WAIT: IdmGap(4.0, 0.25),
+    Reason.DETOUR_WAIT: IdmGap(1.0, 0.1),  # to the detour's stop point (CAV centre), not to an object
 }
 
 
