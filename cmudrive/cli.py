@@ -345,11 +345,15 @@ def _routes_path(name_or_path: str) -> Path:
 @app.command("eval")
 def evaluate(
     routes: Annotated[
-        str, typer.Option(help="route file (.xml) or the name of a committed route set")
-    ] = "smoke",
+        str,
+        typer.Option(
+            help="route file (.xml) or a committed route set: cmudrive44, cmudrive220, smoke, training"
+        ),
+    ] = "cmudrive44",
     agent: Annotated[
-        str, typer.Option(help="agent class as package.module:Class")
-    ] = "cmudrive.agents.pid:PidAgent",
+        str,
+        typer.Option(help="agent class as package.module:Class, or a bundled one: expert, autopilot, pid"),
+    ] = "expert",
     out: Annotated[Path, typer.Option(help="output folder")] = Path("out/eval"),
     workers: Annotated[int, typer.Option(min=1, help="routes run in parallel (local executor)")] = 1,
     resume: Annotated[
@@ -467,21 +471,62 @@ def evaluate(
     console.print(f"results: {out / 'results.json'}")
 
 
+PER_ROUTE_TABLE_MAX = 12  # routes; larger runs print one row per scenario type
+# infraction keys a failure status already says (and minimum speed, which is recorded without penalty)
+_IMPLIED_BY_STATUS = frozenset({"min_speed_infractions", "vehicle_blocked", "route_dev", "route_timeout"})
+
+
+def _failures(route: dict[str, Any]) -> str:
+    """Why a route is not a success, per CAV: its status (when not completed) and its infractions."""
+    parts = []
+    for cav in route.get("cavs", []):
+        status = str(cav["status"])
+        why = [status.removeprefix("Failed - Agent ").removeprefix("Failed - ")] if "Failed" in status else []
+        why += sorted(k for k, v in cav["infractions"].items() if v and k not in _IMPLIED_BY_STATUS)
+        if why:
+            parts.append(f"{cav['cav_id']}: {', '.join(why)}")
+    if route.get("error") and not parts:
+        parts.append(str(route["status"]))
+    return "; ".join(parts)
+
+
 def _print_results(merged: dict[str, Any]) -> None:
-    table = Table(title="CMU-Drive results")
-    for col in ("route", "town", "weather", "CAVs", "status", "RC", "IS", "DS"):
-        table.add_column(col)
-    for r in merged["routes"]:
-        table.add_row(
-            str(r["route_id"]),
-            r["town"],
-            r["weather"],
-            str(r["num_cavs"]),
-            r["status"],
-            f"{r['route_completion']:.1f}",
-            f"{r['infraction_score']:.3f}",
-            f"{r['driving_score']:.1f}",
-        )
+    routes = merged["routes"]
+    if len(routes) <= PER_ROUTE_TABLE_MAX:
+        table = Table(title="CMU-Drive results")
+        for col in ("route", "town", "weather", "CAVs", "status", "RC", "IS", "DS", "why not a success"):
+            table.add_column(col)
+        for r in routes:
+            table.add_row(
+                str(r["route_id"]),
+                r["town"],
+                r["weather"],
+                str(r["num_cavs"]),
+                r["status"],
+                f"{r['route_completion']:.1f}",
+                f"{r['infraction_score']:.3f}",
+                f"{r['driving_score']:.1f}",
+                _failures(r),
+            )
+    else:
+        table = Table(title="CMU-Drive results by scenario type")
+        for col in (
+            "scenario type",
+            "routes",
+            "DS",
+            "SR %",
+            "why not a success (route: CAV: why)",
+        ):
+            table.add_column(col)
+        by_type: dict[str, list[dict[str, Any]]] = {}
+        for r in routes:
+            by_type.setdefault(str(r.get("scenario_type") or "-"), []).append(r)
+        for name, group in by_type.items():
+            scores = merged["summary"]["by_scenario_type"].get(name)
+            ds = f"{scores['driving_score']:.1f}" if scores else "-"
+            sr = f"{scores['success_rate']:.0f}" if scores else "-"
+            why = " | ".join(f"{r['route_id']}: {_failures(r)}" for r in group if not r["success"])
+            table.add_row(name, str(len(group)), ds, sr, why)
     console.print(table)
     s = merged["summary"]
     console.print(

@@ -281,8 +281,10 @@ class ExpertAgent(Agent):
                     break
                 kind = int(p.entry_kind[cav, e])
                 term, why = np.inf, Reason.NONE
+                permissive = False  # a minor green ('g'): go, but give way to the links with priority
                 if kind == EntryKind.LIGHT:
                     state = self._signal(snap, int(p.entry_link[cav, e]))
+                    permissive = state == "g"
                     if state in ("r", "u"):
                         why = Reason.RED_LIGHT
                     elif state == "y" and v[a] ** 2 / (2.0 * c.yellow_decel) < gap:
@@ -299,7 +301,7 @@ class ExpertAgent(Agent):
                         self.stop_ticks[cav] = 0
                 if (
                     why == Reason.NONE
-                    and kind in (EntryKind.YIELD, EntryKind.STOP_SIGN, EntryKind.ALLWAY_STOP)
+                    and (permissive or kind in (EntryKind.YIELD, EntryKind.STOP_SIGN, EntryKind.ALLWAY_STOP))
                     and gap < c.yield_reach
                     and not unblocking[a]
                     and self._must_yield(snap, int(p.entry_link[cav, e]), gap, v[a])
