@@ -42,6 +42,7 @@ from cmudrive.sim.weather import get_weather
 
 HORIZON = 80  # [route points = m] the path ahead that is planned and checked
 PATH_OUT = 40  # [points] of the planned path kept in the decision record
+LOST = 3.0  # [m] a CAV this far from every route point of its search window is looked for on the whole route
 
 
 @dataclass(frozen=True)
@@ -247,6 +248,10 @@ class ExpertAgent(Agent):
         window = np.minimum(self.progress[i][:, None] + np.arange(30)[None, :], p.xy.shape[1] - 2)
         d = np.linalg.norm(p.xy[i[:, None], window] - pos[:, None, :], axis=-1)
         self.progress[i] = window[np.arange(len(i)), np.argmin(d, axis=1)]
+        for a in np.flatnonzero(d.min(axis=1) > LOST):  # far from the window: search the whole route
+            k = int(i[a])
+            whole = np.linalg.norm(p.xy[k, : p.num_points[k]] - pos[a], axis=1)
+            self.progress[k] = int(np.argmin(whole))
         here = p.xy[i, self.progress[i]]
         nxt = p.xy[i, self.progress[i] + 1]
         seg = nxt - here

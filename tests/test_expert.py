@@ -1,0 +1,197 @@
+"""The privileged expert: its rules on synthetic snapshots of real towns, and closed-loop routes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cmudrive.agents import Observations, RouteSetup, sparse_plan
+from cmudrive.agents.expert import ExpertAgent, Reason
+from cmudrive.bench import EvalConfig, evaluate_route
+from cmudrive.bench.records import STATUS_PERFECT
+from cmudrive.maps import RoadMap, Route, densify, load_map
+from cmudrive.maps.model import StopKind
+from cmudrive.sim.background import BackgroundConfig
+from cmudrive.sim.snapshot import ActorKind, Role, Snapshot
+from tests.test_evaluator import ring_route
+
+EMPTY = BackgroundConfig(vehicles=0, pedestrians=0)
+
+
+def route_through(m: RoadMap, approach: str, before: float = 80.0, after: float = 40.0) -> tuple[Route, float]:
+    """A dense route along lane ``approach`` (from ``before`` m before its end) through its first junction
+    link to ``after`` m along the outgoing lane; and the route distance of the approach's end (stop line)."""
+    lane = m.lane(approach)
+    length = float(m.lane_length[lane])
+    out = int(m.link_to[m.successor_links(lane)[0]])
+    start = m.index.frenet_to_xy(np.array([lane]), np.array([max(length - before, 0.5)]))[0]
+    mid = m.index.frenet_to_xy(np.array([lane]), np.array([length - 1.0]))[0]
+    end = m.index.frenet_to_xy(np.array([out]), np.array([min(after, float(m.lane_length[out]) - 1.0)]))[0]
+    route = densify(m, np.array([start, mid, end]))
+    on = np.flatnonzero(route.lane == lane)
+    line = float(route.distance[on[-1]] + length - route.s[on[-1]])
+    return route, line
+
+
+def expert_for(m: RoadMap, routes: list[Route], weather: str = "ClearNoon") -> ExpertAgent:
+    agent = ExpertAgent()
+    cavs = tuple(sparse_plan(f"cav{k}", r, privileged=True) for k, r in enumerate(routes))
+    agent.setup(RouteSetup("test", m.name, weather, 0.05, cavs, m))
+    return agent
+
+
+def scene(
+    route: Route,
+    at: float,
+    speed: float,
+    others: list[dict[str, float]] | None = None,
+    tls: np.ndarray | None = None,
+    tick: int = 0,
+) -> tuple[Snapshot, Observations]:
+    """CAV 0 on ``route`` at route distance ``at`` [m] driving ``speed``, plus ``others`` (dicts of
+    Snapshot columns), lights ``tls``."""
+    k = int(np.searchsorted(route.distance, at))
+    rows: dict[str, list[object]] = {
+        "ids": ["cav0"],
+        "x": [route.xy[k, 0]],
+        "y": [route.xy[k, 1]],
+        "yaw": [route.heading[k]],
+        "speed": [speed],
+        "role": [Role.CAV],
+        "kind": [ActorKind.CAR],
+        "length": [4.9],
+        "width": [2.1],
+    }
+    for j, o in enumerate(others or []):
+        o = {"length": 4.5, "width": 1.9, "speed": 0.0, "role": Role.BACKGROUND, "kind": ActorKind.CAR, **o}
+        rows["ids"].append(f"a{j}")
+        for key in ("x", "y", "yaw", "speed", "role", "kind", "length", "width"):
+            rows[key].append(o[key])
+    columns = {key: np.array(v) for key, v in rows.items()}
+    columns["role"] = columns["role"].astype(np.int8)
+    columns["kind"] = columns["kind"].astype(np.int8)
+    snap = Snapshot.from_rows(tick, tick * 0.05, tls if tls is not None else np.array([], str), **columns)
+    obs = Observations(
+        tick=tick,
+        time=tick * 0.05,
+        cav_index=np.array([0]),
+        x=snap.x[:1],
+        y=snap.y[:1],
+        yaw=snap.yaw[:1],
+        speed=snap.speed[:1],
+        accel=np.zeros(1),
+        snapshot=snap,
+    )
+    return snap, obs
+
+
+def lights_all(m: RoadMap, char: str) -> np.ndarray:
+    return np.array(
+        [char * len(str(m.phase_state[m.tls_phase_ptr[t]])) for t in range(len(m.tls_ids))], dtype=str
+    )
+
+
+@pytest.fixture(scope="module")
+def downtown() -> RoadMap:
+    return load_map("downtown")
+
+
+def test_red_light_stops_the_cav_before_the_line_green_does_not(downtown: RoadMap) -> None:
+    m = downtown
+    lane = str(m.lane_ids[m.stop_lane[np.flatnonzero(m.stop_kind == StopKind.TRAFFIC_LIGHT)[0]]])
+    route, line = route_through(m, lane)
+    agent = expert_for(m, [route])
+    _, obs = scene(route, line - 30.0, 8.0, tls=lights_all(m, "r"))
+    controls = agent.run_step(obs)
+    d = agent.decision
+    assert d is not None and d.reason[0] == Reason.RED_LIGHT
+    assert 30.0 - 2.45 - 1.5 < d.distance[0] < 30.0 - 2.45 + 1.5  # bumper to the stop line [m]
+    assert controls.brake[0] > 0.0 and controls.throttle[0] == 0.0
+    green = expert_for(m, [route])
+    _, obs = scene(route, line - 30.0, 8.0, tls=lights_all(m, "G"))
+    controls = green.run_step(obs)
+    assert green.decision is not None and green.decision.reason[0] != Reason.RED_LIGHT
+    assert controls.brake[0] == 0.0
+
+
+def test_stopped_car_ahead_is_followed_with_idm(downtown: RoadMap) -> None:
+    """A car standing 25 m ahead in the lane: the expert names it and measures the bumper gap; at 10 m/s
+    it brakes, at 5 m/s IDM still lets it close in, more gently than it would on an empty road."""
+    m = downtown
+    lane = str(m.lane_ids[m.stop_lane[np.flatnonzero(m.stop_kind == StopKind.TRAFFIC_LIGHT)[0]]])
+    route, line = route_through(m, lane, before=100.0)
+    at = line - 80.0
+    k = int(np.searchsorted(route.distance, at + 25.0))
+    car = {"x": route.xy[k, 0], "y": route.xy[k, 1], "yaw": route.heading[k]}
+    accel = []
+    for speed in (5.0, 10.0):
+        agent = expert_for(m, [route])
+        _, obs = scene(route, at, speed, others=[car], tls=lights_all(m, "G"))
+        agent.run_step(obs)
+        d = agent.decision
+        assert d is not None and d.reason[0] == Reason.LEADING_VEHICLE and d.object_id[0] == "a0"
+        assert 25.0 - 2.45 - 2.25 - 1.0 < d.distance[0] < 25.0 - 2.45 - 2.25 + 1.0
+        accel.append(d.accel[0])
+    assert accel[1] < 0.0 < accel[0] < 2.5
+
+
+def test_pedestrian_stepping_into_the_lane_stops_the_cav(downtown: RoadMap) -> None:
+    m = downtown
+    lane = str(m.lane_ids[m.stop_lane[np.flatnonzero(m.stop_kind == StopKind.TRAFFIC_LIGHT)[0]]])
+    route, line = route_through(m, lane, before=100.0)
+    at = line - 80.0
+    k = int(np.searchsorted(route.distance, at + 15.0))
+    left = route.heading[k] + np.pi / 2
+    walker = {
+        "x": route.xy[k, 0] + 3.0 * np.cos(left),
+        "y": route.xy[k, 1] + 3.0 * np.sin(left),
+        "yaw": route.heading[k] - np.pi / 2,  # walking across, toward the lane
+        "speed": 1.4,
+        "kind": ActorKind.PEDESTRIAN,
+        "length": 0.5,
+        "width": 0.6,
+    }
+    agent = expert_for(m, [route])
+    _, obs = scene(route, at, 8.0, others=[walker], tls=lights_all(m, "G"))
+    controls = agent.run_step(obs)
+    d = agent.decision
+    assert d is not None and d.reason[0] in (Reason.FORECAST, Reason.PEDESTRIAN)
+    assert d.object_id[0] == "a0" and controls.brake[0] > 0.0
+
+
+def test_stop_sign_needs_a_full_stop_then_clears(downtown: RoadMap) -> None:
+    """At an all-way stop the expert stops with its bumper within 4 m of the line (the criterion's stop
+    area), stands 25 ticks, and then goes."""
+    m = downtown
+    lane = str(m.lane_ids[m.stop_lane[np.flatnonzero(m.stop_kind == StopKind.ALLWAY_STOP)[0]]])
+    route, line = route_through(m, lane)
+    agent = expert_for(m, [route])
+    _, obs = scene(route, line - 30.0, 6.0)
+    agent.run_step(obs)
+    assert agent.decision is not None and agent.decision.reason[0] == Reason.STOP_SIGN
+    at = line - 2.45 - 2.5  # standing, bumper 2.5 m before the line
+    for tick in range(1, 25):
+        _, obs = scene(route, at, 0.0, tick=tick)
+        controls = agent.run_step(obs)
+        assert agent.decision is not None and agent.decision.reason[0] == Reason.STOP_SIGN, tick
+        assert controls.brake[0] == 1.0
+    _, obs = scene(route, at, 0.0, tick=25)  # the 25th tick standing: served
+    controls = agent.run_step(obs)
+    assert agent.decision is not None and agent.decision.reason[0] != Reason.STOP_SIGN
+    assert controls.throttle[0] > 0.0
+
+
+def test_expert_drives_both_cavs_to_the_end_without_infraction() -> None:
+    result = evaluate_route(ring_route(), ExpertAgent, EvalConfig(background=EMPTY))
+    assert [c.status for c in result.cavs] == [STATUS_PERFECT] * 2
+    assert result.ticks < 1000  # 210-220 m from standstill at 0.72 x 25 m/s: ~15-20 s
+
+
+def test_expert_is_deterministic_with_traffic() -> None:
+    """The same route twice (background traffic on) gives the same records, tick for tick."""
+    config = EvalConfig(tick_cap=600)
+    a = evaluate_route(ring_route(seed=3), ExpertAgent, config).to_json()
+    b = evaluate_route(ring_route(seed=3), ExpertAgent, config).to_json()
+    a.pop("wall_time")
+    b.pop("wall_time")
+    assert a == b
