@@ -27,6 +27,7 @@ from cmudrive.sim.snapshot import Role, Snapshot
 
 BESIDE_DRIVE = 50.0  # [m] the car beside drives this far, then leaves
 AFTER_FRONT = 15.0  # [m] the scenario ends when CAV 0 drove front_vehicle_distance + this
+BESIDE_CLEARANCE = 0.3  # [m] at least this between CAV 0 in its slot and the car beside it
 
 
 class ParkingExit(Scenario):
@@ -55,7 +56,12 @@ class ParkingExit(Scenario):
             )
         self.side = int(side[0])
         w_side, half = float(m.lane_width[self.side]), 0.5 * ACTOR_TYPES["cav"].width
-        self.edge_offset = side_sign(direction) * (w_side - half) / 4.0  # toward the outer edge
+        # toward the outer edge; on a shoulder narrower than the CAV (CARLA's towns: 0.3-0.5 m) as far out
+        # as it takes to clear the car that stands beside it on the driving lane (it touched that car at
+        # tick 1 otherwise): the CAV then stands partly on the kerb, as a car parked on a narrow street
+        clear = 0.5 * (ACTOR_TYPES["cav"].width + ACTOR_TYPES["car"].width) + BESIDE_CLEARANCE
+        from_centres = 0.5 * (float(m.lane_width[lane]) + w_side)  # driving lane centre to side lane centre
+        self.edge_offset = side_sign(direction) * max((w_side - half) / 4.0, clear - from_centres)
         s, _ = m.index.project(point_xy(m, self.t_wp)[None], np.array([self.side]))
         self.slot = LanePoint(self.side, float(s[0]))
         self.goal = float(self.ctx.routes[0].distance[self.trigger_index]) + self.num(
