@@ -110,6 +110,12 @@ class BackgroundConfig:
     stuck_speed: float = 0.1  # [m/s] slower than this counts as stopped
     stuck_time: float = 60.0  # [s] stopped this long out of sight -> removed
     depart_timeout: float = 3.0  # [s] a vehicle SUMO could not insert within this is removed (dropped)
+    # a background actor standing this long inside a junction or on a crossing, within deadlock_reach
+    # ahead of a standing CAV, is removed: SUMO's car or pedestrian waits for the CAV's copy in its path
+    # while the CAV waits for it (one such pair stood until the CAV counted as blocked, in ~1 of 10
+    # junction routes of the expert)
+    deadlock_time: float = 15.0  # [s]
+    deadlock_reach: float = 10.0  # [m]
     vehicle_mix: dict[str, float] = field(default_factory=lambda: dict(BACKGROUND_VEHICLE_MIX))  # type share
 
     def __post_init__(self) -> None:
@@ -220,6 +226,7 @@ class BackgroundActivity:
                 "spawned_pedestrians",
                 "removed_far",
                 "removed_stuck",
+                "removed_deadlock",
                 "removed_command",
                 "dropped",
                 "refused",
@@ -233,6 +240,7 @@ class BackgroundActivity:
         self._type_p = shares / shares.sum()
         self._n_spawned = 0
         self._pending: dict[str, _Pending] = {}
+        self._deadlocked_since: dict[str, float] = {}  # [s] background actor id -> since when it blocks
         self._type_of: dict[str, str] = {}  # our vehicles' type names
         self._stopped_since: dict[str, float] = {}  # vehicle -> time it was first seen stopped [s]
         self._stopped_lanes: set[int] = set()
@@ -304,6 +312,7 @@ class BackgroundActivity:
         self._settle_spawns(world, scene)
         self._remove_far(world, scene)
         self._remove_stuck(world, scene)
+        self._break_deadlocks(world, scene, cavs)
         if not self._opposite:  # keep the oncoming lanes ahead empty, removing only out of sight
             self._remove_opposite(world, scene, cavs, self.config.spawn_min_distance)
         self._halt_on_stopped_lanes(scene)
@@ -379,6 +388,41 @@ class BackgroundActivity:
             and scene.ids[r] not in self._halted
         ]
         self._remove(world, scene, np.array(stuck, np.int64), "removed_stuck")
+
+    def _break_deadlocks(self, world: World, scene: _Scene, cavs: _Cavs) -> None:
+        """Remove background actors that stood ``deadlock_time`` inside a junction (or on a crossing) just
+        ahead of a standing CAV (see ``BackgroundConfig.deadlock_time``)."""
+        cfg, m, snap = self.config, world.map, world.last_snapshot
+        since = self._deadlocked_since
+        if snap is None:
+            return
+        cav_rows = np.flatnonzero(snap.role == Role.CAV)
+        standing_cavs = cav_rows[np.abs(snap.speed[cav_rows]) < cfg.stuck_speed]
+        rows = np.flatnonzero(
+            scene.alive
+            & scene.background
+            & (scene.speed < cfg.stuck_speed)
+            & (scene.lane >= 0)
+            & (scene.cav_dist < cfg.deadlock_reach)
+        )
+        rows = rows[m.lane_internal[scene.lane[rows]]]
+        blocking: set[str] = set()
+        if len(rows) and len(standing_cavs):
+            rel = scene.xy[rows][:, None, :] - np.stack([snap.x, snap.y], axis=1)[standing_cavs][None, :, :]
+            yaw = snap.yaw[standing_cavs][None, :]
+            along = rel[..., 0] * np.cos(yaw) + rel[..., 1] * np.sin(yaw)
+            dist = np.hypot(rel[..., 0], rel[..., 1])
+            ahead = ((along > 0.0) & (dist < cfg.deadlock_reach)).any(axis=1)
+            blocking = {scene.ids[r] for r in rows[ahead].tolist()}
+        now = world.time
+        for actor_id in [a for a in since if a not in blocking]:
+            del since[actor_id]
+        for actor_id in blocking:
+            since.setdefault(actor_id, now)
+        stale = [r for r in rows.tolist() if now - since.get(scene.ids[r], now) >= cfg.deadlock_time]
+        self._remove(world, scene, np.array(stale, np.int64), "removed_deadlock")
+        for r in stale:
+            since.pop(scene.ids[r], None)
 
     def _remove_opposite(self, world: World, scene: _Scene, cavs: _Cavs, min_distance: float) -> int:
         """Remove vehicles heading against their nearest CAV, ahead of it, within the radius."""

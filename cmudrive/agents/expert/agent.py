@@ -348,8 +348,9 @@ class ExpertAgent(Agent):
         """Roll every CAV along its path at the speed the other rules leave it (so a CAV stopping for a
         light does not see the crossing traffic it will never meet) and stop it for the first predicted
         conflict with a moving actor that is not behind it and not the object it already follows. Between
-        two CAVs the one that reaches the conflict point later yields; when both stand, the lower CAV
-        index goes first."""
+        two CAVs only one yields: the one that sees the conflict when the other does not, else the one
+        whose own rollout reaches the conflict point later (ties: the higher CAV index). Both CAVs judge
+        the pair from the same two numbers, so they never both wait (or both go)."""
         c = self.config
         n = len(i)
         target = np.maximum(v + accel * c.speed_time_constant, 0.0)
@@ -363,13 +364,11 @@ class ExpertAgent(Agent):
         for a, rows_around in enumerate(around):  # what the detour goes around or waited for
             mask[a, rows_around] = False
         mask[unblocking] = False
-        cav_rows, cav_index = snap.cav_rows()
-        if len(cav_rows) > 1:
-            other = mask[:, cav_rows]  # (n, K) CAV-CAV pairs: only the later one yields
-            ego_first = fc.ego_first[:, cav_rows]
-            both_slow = (v[:, None] < 0.5) & (np.abs(snap.speed[cav_rows])[None, :] < 0.5)
-            ego_first = np.where(both_slow, i[:, None] < cav_index[None, :], ego_first)
-            mask[:, cav_rows] = other & ~ego_first
+        if n > 1:  # CAV-CAV pairs: exactly one of the two yields (the same rule seen from both sides)
+            sees = mask[:, rows] & fc.conflict[:, rows]  # (n, n) [a, b]: a sees a conflict with b
+            arrival = fc.ego_arrival[:, rows]  # [a, b]: when a reaches its conflict point with b
+            b_first = (arrival.T < arrival) | ((arrival.T == arrival) & (i[None, :] < i[:, None]))
+            mask[:, rows] = sees & (~sees.T | b_first)
         row, when = fc.nearest(mask)
         term = np.where(row >= 0, -v / np.maximum(when, c.speed_time_constant), np.inf)
         term = np.where((row >= 0) & (v < c.hold_speed), -c.idm.max_accel, term)
