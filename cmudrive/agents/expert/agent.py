@@ -42,6 +42,7 @@ from cmudrive.sim.weather import get_weather
 
 HORIZON = 80  # [route points = m] the path ahead that is planned and checked
 PATH_OUT = 40  # [points] of the planned path kept in the decision record
+PROGRESS_WINDOW = 6  # [route points = m] searched ahead each tick (a CAV moves < 2 m per tick)
 LOST = 3.0  # [m] a CAV this far from every route point of its search window is looked for on the whole route
 
 
@@ -242,16 +243,22 @@ class ExpertAgent(Agent):
         return np.array([row_of[int(k)] for k in cav_index], np.int64)
 
     def _advance(self, pos: np.ndarray, i: np.ndarray) -> np.ndarray:
-        """Move each CAV's progress to its nearest route point in a window ahead; (n,) [m] of the CAV past
-        that point along the route (its projection, clipped to [-0.5, 1])."""
+        """Move each CAV's progress to its nearest route point in a short window ahead (a route that comes
+        back close to itself, as round a roundabout, must not pull the progress onto its later part);
+        (n,) [m] of the CAV past that point along the route (its projection, clipped to [-0.5, 1])."""
         p = self.plans
-        window = np.minimum(self.progress[i][:, None] + np.arange(30)[None, :], p.xy.shape[1] - 2)
+        window = np.minimum(
+            self.progress[i][:, None] + np.arange(PROGRESS_WINDOW)[None, :], p.xy.shape[1] - 2
+        )
         d = np.linalg.norm(p.xy[i[:, None], window] - pos[:, None, :], axis=-1)
         self.progress[i] = window[np.arange(len(i)), np.argmin(d, axis=1)]
-        for a in np.flatnonzero(d.min(axis=1) > LOST):  # far from the window: search the whole route
+        for a in np.flatnonzero(d.min(axis=1) > LOST):  # far from the window: search the rest of the route
             k = int(i[a])
-            whole = np.linalg.norm(p.xy[k, : p.num_points[k]] - pos[a], axis=1)
-            self.progress[k] = int(np.argmin(whole))
+            rest = np.linalg.norm(p.xy[k, self.progress[k] : p.num_points[k]] - pos[a], axis=1)
+            if len(rest) and rest.min() <= LOST:
+                self.progress[k] += int(np.argmin(rest))
+            else:
+                self.progress[k] = int(np.argmin(np.linalg.norm(p.xy[k, : p.num_points[k]] - pos[a], axis=1)))
         here = p.xy[i, self.progress[i]]
         nxt = p.xy[i, self.progress[i] + 1]
         seg = nxt - here
