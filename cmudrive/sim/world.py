@@ -246,10 +246,15 @@ class World:
         self._push_cavs(np.array([i]))
 
     def _push_cavs(self, rows: np.ndarray) -> None:
+        """Push the CAVs at ``rows`` (sorted indices) into SUMO."""
         st = self.cav_state
-        length = np.full(len(rows), ACTOR_TYPES["cav"].length)
-        self._cav_off_road[rows] = self.sumo.move_vehicles(
-            [self.cav_ids[i] for i in rows], st.x[rows], st.y[rows], st.yaw[rows], st.speed[rows], length
+        pick: slice | np.ndarray
+        ids, pick = self.cav_ids, slice(None)  # every CAV (the common case): views, no copies
+        if len(rows) != len(self.cav_ids):
+            ids, pick = [self.cav_ids[i] for i in rows], rows
+        length = np.full(len(ids), ACTOR_TYPES["cav"].length)
+        self._cav_off_road[pick] = self.sumo.move_vehicles(
+            ids, st.x[pick], st.y[pick], st.yaw[pick], st.speed[pick], length
         )
 
     # ------------------------------------------------------------------ scenario actors and props
@@ -319,8 +324,9 @@ class World:
         clock = self.timing
         t0 = perf_counter()
         active = np.flatnonzero(self.cav_active)
-        check = validate_controls(controls, [self.cav_ids[i] for i in active])
-        self.cav_clipped[active] += check.clipped
+        every = len(active) == len(self.cav_ids)  # the common case: slices, no copies
+        check = validate_controls(controls, self.cav_ids if every else [self.cav_ids[i] for i in active])
+        self.cav_clipped[slice(None) if every else active] += check.clipped
         self._advance_cavs(active, check.controls)
         self._push_layer()
         t1 = perf_counter()
@@ -359,12 +365,13 @@ class World:
         params, friction = self.config.cav_params, self.weather.friction
         if len(active) == len(self.cav_ids):  # the common case: no copies of the state
             self.cav_state = step_bicycle(st, controls, params, self.dt, friction)
+            self._cav_brake[:] = controls.brake
         else:
             sub = CavState(*(getattr(st, f)[active] for f in CavState.__dataclass_fields__))
             new = step_bicycle(sub, controls, params, self.dt, friction)
             for f in CavState.__dataclass_fields__:
                 getattr(st, f)[active] = getattr(new, f)
-        self._cav_brake[active] = controls.brake
+            self._cav_brake[active] = controls.brake
         self._push_cavs(active)
 
     def _push_layer(self) -> None:
