@@ -203,9 +203,7 @@ class SumoSession:
             lane=lane,
             lane_pos=lane_pos,
             signals=signals,
-            extra_lane=np.fromiter(
-                (lane_of(veh.getLaneID(a), -1) if a in present else -1 for a in extra or []), np.int32
-            ),
+            extra_lane=_extra_lanes(extra or [], present, veh.getLaneID, lane_of),
             columns_version=self._columns_version,
         )
 
@@ -436,6 +434,15 @@ def _getters(domain: str) -> _Getters:
     raw, public = getattr(libsumo, "_libsumo", None), getattr(libsumo, domain)
     names = [f.name for f in fields(_Getters)]
     return _Getters(*(getattr(raw, f"{domain}_{n}", None) or getattr(public, n) for n in names))
+
+
+def _extra_lanes(
+    ids: list[str], present: set[str], lane_id: Callable[[str], str], lane_of: Callable[[str, int], int]
+) -> np.ndarray:
+    """(len(ids),) int32 map lane of each vehicle id, -1 for a lane off the map or an id not in SUMO."""
+    if present.issuperset(ids):  # the common case: one map over the ids, no Python loop
+        return np.fromiter(map(lane_of, map(lane_id, ids), repeat(-1)), np.int32, len(ids))
+    return np.array([lane_of(lane_id(a), -1) if a in present else -1 for a in ids], np.int32)
 
 
 @numba.njit(cache=True)
