@@ -396,8 +396,9 @@ class World:
         m = self.map
         st = self.cav_state
         cav = np.flatnonzero(self.cav_active)
-        cav_ids = [self.cav_ids[i] for i in cav]
-        rows = slice(None) if len(cav) == len(self.cav_ids) else cav  # a view when every CAV is active
+        every = len(cav) == len(self.cav_ids)  # the common case: views and the id list, no copies
+        cav_ids = self.cav_ids if every else [self.cav_ids[i] for i in cav]
+        rows = slice(None) if every else cav
         L = self.layer
         layer_lane = (
             m.index.nearest_lane(np.stack([L.x, L.y], axis=1), max_distance=2.0).lane
