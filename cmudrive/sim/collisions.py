@@ -134,10 +134,13 @@ def _collide(
     for i in range(n):
         radius[i] = math.hypot(hl[i], hw[i])
     rows = np.flatnonzero(valid)
-    reach = 0.0
-    if rows.shape[0] >= 2:
-        top = np.sort(radius[rows])
-        reach = top[-1] + top[-2]
+    first, second = 0.0, 0.0  # the two largest radii among the valid rows
+    for i in rows:
+        if radius[i] > first:
+            first, second = radius[i], first
+        elif radius[i] > second:
+            second = radius[i]
+    reach = first + second if rows.shape[0] >= 2 else 0.0
     rows = rows[np.argsort(x[rows], kind="mergesort")]
     hit_a, hit_b, hit_pen = [], [], []
     for p in range(rows.shape[0]):
