@@ -135,11 +135,12 @@ def _collide(
         radius[i] = math.hypot(hl[i], hw[i])
     rows = np.flatnonzero(valid)
     first, second = 0.0, 0.0  # the two largest radii among the valid rows
-    for i in rows:
-        if radius[i] > first:
-            first, second = radius[i], first
-        elif radius[i] > second:
-            second = radius[i]
+    for k in range(rows.shape[0]):
+        r = radius[rows[k]]
+        if r > first:
+            first, second = r, first
+        elif r > second:
+            second = r
     reach = first + second if rows.shape[0] >= 2 else 0.0
     rows = rows[np.argsort(x[rows], kind="mergesort")]
     hit_a, hit_b, hit_pen = [], [], []
