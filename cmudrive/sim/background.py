@@ -62,6 +62,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
+import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -461,11 +462,10 @@ class BackgroundActivity:
         rng: np.random.Generator,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Indices of usable spawn points and their distance to the nearest CAV [m]."""
-        # the nearest CAV of every point, kept within `radius` of it (<= radius: the bound is exclusive);
-        # one query over the points on a tree of <= 16 CAVs, ~4x cheaper than a ball query per CAV
-        # plus a (points x CAVs) distance table
-        dist, nearest = cKDTree(cavs.xy).query(points.xy, distance_upper_bound=np.nextafter(radius, np.inf))
-        idx = np.flatnonzero(np.isfinite(dist))
+        # the nearest CAV of every point, kept within `radius` of it; one compiled loop over points x CAVs
+        # (~40 us for ~2000 points and 16 CAVs; a query on a KD-tree of the CAVs took ~240 us)
+        nearest, dist = _nearest_point(points.xy, cavs.xy)
+        idx = np.flatnonzero(dist <= radius)
         dist, nearest = dist[idx], nearest[idx]
         # every other slot of a lane this update, so two spawns of one batch are >= 2 spacings apart
         ok = (dist >= min_distance) & ~self._lane_removed[points.lane[idx]]
@@ -824,9 +824,7 @@ def _build_scene(snap: Snapshot, world: World, pending: dict[str, _Pending], cav
     bg_role = int(Role.BACKGROUND)
     background = np.array([a in actors and actors[a].role == bg_role for a in ids], bool)
     if len(cavs.xy) and len(ids):
-        d2 = ((xy[:, None, :] - cavs.xy[None, :, :]) ** 2).sum(axis=-1)
-        near = d2.argmin(axis=1)
-        dist = np.sqrt(d2[np.arange(len(ids)), near])
+        near, dist = _nearest_point(xy, cavs.xy)
     else:
         near, dist = np.zeros(len(ids), np.int64), np.full(len(ids), np.inf)
     return _Scene(
@@ -844,6 +842,22 @@ def _build_scene(snap: Snapshot, world: World, pending: dict[str, _Pending], cav
         cav_dist=dist,
         cav_near=near,
     )
+
+
+@numba.njit(cache=True)
+def _nearest_point(xy: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each of the (n, 2) ``xy``, the row of the nearest of the (k, 2) ``points`` (the first of equals)
+    and the distance to it [m]. One compiled loop: the (n, k, 2) numpy table cost ~55 us for ~170 actors
+    and 16 CAVs."""
+    near, dist = np.zeros(xy.shape[0], np.int64), np.empty(xy.shape[0])
+    for i in range(xy.shape[0]):
+        best = np.inf
+        for j in range(points.shape[0]):
+            d2 = (xy[i, 0] - points[j, 0]) ** 2 + (xy[i, 1] - points[j, 1]) ** 2
+            if d2 < best:
+                best, near[i] = d2, j
+        dist[i] = np.sqrt(best)
+    return near, dist
 
 
 def _lane_offsets(road_map: RoadMap, lane: int, s: float, distance: float) -> dict[int, float]:

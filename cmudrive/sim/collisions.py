@@ -74,23 +74,22 @@ def detect_collisions(snap: Snapshot, active: np.ndarray | None = None) -> Colli
     """Every pair of valid actors whose boxes overlap; with ``active`` (A,) bool, only pairs in which at
     least one actor is active (e.g. pairs involving a CAV)."""
     n = snap.num_actors
+    valid = np.asarray(snap.valid, bool)
     if active is None:
-        active = np.ones(n, bool)
+        active = valid
     else:
         active = np.asarray(active)
         if active.shape != (n,) or active.dtype != bool:
             raise ValueError(f"active must be bool of shape ({n},), not {active.dtype} {active.shape}")
-    valid = np.asarray(snap.valid, bool)
-    x, y, yaw, speed = (np.asarray(getattr(snap, f), np.float64) for f in ("x", "y", "yaw", "speed"))
-    half_len = 0.5 * np.asarray(snap.length, np.float64)
-    half_wid = 0.5 * np.asarray(snap.width, np.float64)
-    # one sum finds any NaN or infinity among the valid rows (inf - inf is NaN too)
-    bad = valid & ~np.isfinite(x + y + yaw + speed + half_len + half_wid)
-    if np.any(bad):
-        raise ValueError(f"non-finite pose, extent or speed for actors {snap.ids[bad][:5].tolist()}")
-    c, s = np.cos(yaw), np.sin(yaw)
-    a, b, penetration, point = _collide(x, y, c, s, half_len, half_wid, valid & active, valid)
-    vx, vy = speed * c, speed * s
+        active = valid & active
+    x, y, yaw, speed, length, width = (
+        np.asarray(getattr(snap, f), np.float64) for f in ("x", "y", "yaw", "speed", "length", "width")
+    )
+    bad, a, b, penetration, point, relative_speed = _collide(x, y, yaw, speed, length, width, active, valid)
+    if bad:
+        # one sum finds any NaN or infinity among the valid rows (inf - inf is NaN too)
+        rows = valid & ~np.isfinite(x + y + yaw + speed + 0.5 * length + 0.5 * width)
+        raise ValueError(f"non-finite pose, extent or speed for actors {snap.ids[rows][:5].tolist()}")
     return CollisionEvents(
         a=a,
         b=b,
@@ -100,7 +99,7 @@ def detect_collisions(snap: Snapshot, active: np.ndarray | None = None) -> Colli
         kind_b=snap.kind[b],
         role_a=snap.role[a],
         role_b=snap.role[b],
-        relative_speed=np.hypot(vx[a] - vx[b], vy[a] - vy[b]),
+        relative_speed=relative_speed,
         point=point,
         penetration=penetration,
     )
@@ -110,28 +109,39 @@ def detect_collisions(snap: Snapshot, active: np.ndarray | None = None) -> Colli
 def _collide(
     x: np.ndarray,
     y: np.ndarray,
-    c: np.ndarray,
-    s: np.ndarray,
-    hl: np.ndarray,
-    hw: np.ndarray,
+    yaw: np.ndarray,
+    speed: np.ndarray,
+    length: np.ndarray,
+    width: np.ndarray,
     active: np.ndarray,
     valid: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Overlapping pairs (a < b, sorted by a then b) of the boxes (centre x, y, heading cos c / sin s,
-    half length hl, half width hw; (A,) each) among the ``valid`` rows, at least one of them ``active``:
-    indices a, b (E,), penetration (E,) and contact point (E, 2).
+) -> tuple[bool, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Overlapping pairs (a < b, sorted by a then b) of the boxes (centre x, y, heading yaw, length,
+    width; (A,) each) among the ``valid`` rows, at least one of them ``active``: whether a valid row has a
+    non-finite pose, extent or speed (then no pairs), indices a, b (E,), penetration (E,), contact point
+    (E, 2) and relative speed |v_a - v_b| (E,) with v = speed * (cos yaw, sin yaw).
 
     Broad phase: rows sorted by x, each swept forward while the x gap is below the largest sum of two
     bounding-circle radii (half-diagonals); pairs whose circles intersect go to the SAT test."""
     n = x.shape[0]
+    hl, hw = 0.5 * length, 0.5 * width
+    for i in range(n):
+        if valid[i] and not np.isfinite(x[i] + y[i] + yaw[i] + speed[i] + hl[i] + hw[i]):
+            empty = np.empty(0, np.int64)
+            return True, empty, empty, np.empty(0), np.empty((0, 2)), np.empty(0)
+    c, s = np.cos(yaw), np.sin(yaw)
     radius = np.empty(n)
     for i in range(n):
         radius[i] = math.hypot(hl[i], hw[i])
     rows = np.flatnonzero(valid)
-    reach = 0.0
-    if rows.shape[0] >= 2:
-        top = np.sort(radius[rows])
-        reach = top[-1] + top[-2]
+    first, second = 0.0, 0.0  # the two largest radii among the valid rows
+    for k in range(rows.shape[0]):
+        r = radius[rows[k]]
+        if r > first:
+            first, second = r, first
+        elif r > second:
+            second = r
+    reach = first + second if rows.shape[0] >= 2 else 0.0
     rows = rows[np.argsort(x[rows], kind="mergesort")]
     hit_a, hit_b, hit_pen = [], [], []
     for p in range(rows.shape[0]):
@@ -154,11 +164,13 @@ def _collide(
     e = len(hit_a)
     a, b, penetration = np.empty(e, np.int64), np.empty(e, np.int64), np.empty(e)
     order = np.argsort(np.array([hit_a[k] * n + hit_b[k] for k in range(e)], np.int64))
-    point = np.empty((e, 2))
+    point, relative_speed = np.empty((e, 2)), np.empty(e)
     for k in range(e):
-        a[k], b[k], penetration[k] = hit_a[order[k]], hit_b[order[k]], hit_pen[order[k]]
-        point[k, 0], point[k, 1] = _contact_point(x, y, c, s, hl, hw, a[k], b[k])
-    return a, b, penetration, point
+        i, j = hit_a[order[k]], hit_b[order[k]]
+        a[k], b[k], penetration[k] = i, j, hit_pen[order[k]]
+        point[k, 0], point[k, 1] = _contact_point(x, y, c, s, hl, hw, i, j)
+        relative_speed[k] = math.hypot(speed[i] * c[i] - speed[j] * c[j], speed[i] * s[i] - speed[j] * s[j])
+    return False, a, b, penetration, point, relative_speed
 
 
 @numba.njit(cache=True)

@@ -18,6 +18,7 @@ them. Nothing non-finite ever reaches the state.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cache
 
 import numba
 import numpy as np
@@ -77,8 +78,8 @@ class ControlCheck:
 
 
 _CONTROL_NAMES = ("steer", "throttle", "brake")
-_CONTROL_LOW = np.array([[-1.0], [0.0], [0.0]])  # (3, 1) lower limits, in _CONTROL_NAMES order
-_CONTROL_HIGH = np.array([[1.0], [1.0], [1.0]])
+_CONTROL_LOW = (-1.0, 0.0, 0.0)  # lower limits, in _CONTROL_NAMES order
+_CONTROL_HIGH = (1.0, 1.0, 1.0)
 
 
 def validate_controls(controls: Controls, cav_ids: list[str] | np.ndarray) -> ControlCheck:
@@ -88,16 +89,33 @@ def validate_controls(controls: Controls, cav_ids: list[str] | np.ndarray) -> Co
     for name, value in zip(_CONTROL_NAMES, values, strict=True):
         if value.shape != (n,):
             raise ControlError(f"{name} has shape {value.shape}, expected ({n},): one value per active CAV")
-    raw = np.stack(values)  # (3, n)
-    if not np.isfinite(raw).all():
-        for name, value in zip(_CONTROL_NAMES, raw, strict=True):
+    fixed, clipped, finite = _clip_controls(*values)  # one compiled loop: ~1 us instead of ~8 numpy calls
+    if not finite:
+        for name, value in zip(_CONTROL_NAMES, values, strict=True):
             bad = np.flatnonzero(~np.isfinite(value))
             if len(bad):
                 i = int(bad[0])
                 raise ControlError(f"CAV {cav_ids[i]}: {name} is {value[i]} (controls must be finite)")
-    fixed = np.clip(raw, _CONTROL_LOW, _CONTROL_HIGH)
-    clipped = (fixed != raw).any(axis=0)
     return ControlCheck(Controls(fixed[0], fixed[1], fixed[2]), clipped)
+
+
+@numba.njit(cache=True)
+def _clip_controls(
+    steer: np.ndarray, throttle: np.ndarray, brake: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, bool]:
+    """(3, n) controls clipped to their ranges, (n,) whether a CAV's were clipped, and whether all are
+    finite (when not, the other two are meaningless)."""
+    n = steer.shape[0]
+    fixed, clipped = np.empty((3, n)), np.zeros(n, np.bool_)
+    for k, value in enumerate((steer, throttle, brake)):
+        low, high = _CONTROL_LOW[k], _CONTROL_HIGH[k]
+        for i in range(n):
+            v = value[i]
+            if not np.isfinite(v):
+                return fixed, clipped, False
+            fixed[k, i] = min(max(v, low), high)
+            clipped[i] |= fixed[k, i] != v
+    return fixed, clipped, True
 
 
 def step_bicycle(
@@ -107,7 +125,6 @@ def step_bicycle(
 
     One compiled loop over the CAVs (numba): numpy's ~40 operations on 16-element arrays cost ~30 us
     per tick, the loop ~2 us."""
-    p = params
     out = _bicycle(
         state.x,
         state.y,
@@ -117,24 +134,32 @@ def step_bicycle(
         np.asarray(controls.steer, np.float64),
         np.asarray(controls.throttle, np.float64),
         np.asarray(controls.brake, np.float64),
-        np.array(
-            [
-                p.wheelbase,
-                p.rear_to_cg,
-                p.max_steer,
-                p.steer_rate,
-                p.max_accel,
-                p.max_speed,
-                p.max_brake,
-                p.rolling,
-                p.drag,
-                p.max_lateral_accel,
-            ]
-        ),
+        _param_array(params),
         dt,
         friction,
     )  # (6, n): x, y, yaw, speed, steer_angle, accel
     return CavState(*out)
+
+
+@cache
+def _param_array(p: VehicleParams) -> np.ndarray:
+    """The parameters in the order ``_bicycle`` reads them (read-only, made once per VehicleParams)."""
+    array = np.array(
+        [
+            p.wheelbase,
+            p.rear_to_cg,
+            p.max_steer,
+            p.steer_rate,
+            p.max_accel,
+            p.max_speed,
+            p.max_brake,
+            p.rolling,
+            p.drag,
+            p.max_lateral_accel,
+        ]
+    )
+    array.flags.writeable = False
+    return array
 
 
 @numba.njit(cache=True)

@@ -34,7 +34,9 @@ class TrafficLights:
         the array is rebuilt only when a string changed and shared (read-only) by the ticks between."""
         import libsumo
 
-        states = list(map(libsumo.trafficlight.getRedYellowGreenState, self.ids))
+        raw = getattr(libsumo, "_libsumo", None)  # the C entry point: the public wrapper only forwards
+        get_state = getattr(raw, "trafficlight_getRedYellowGreenState", None)
+        states = list(map(get_state or libsumo.trafficlight.getRedYellowGreenState, self.ids))
         if states != self._last_states:
             self._last_states = states
             self._last_array = np.array(states, dtype=str)

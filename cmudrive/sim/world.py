@@ -23,7 +23,6 @@ The world owns one libsumo simulation; use it as a context manager (or call ``cl
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from itertools import repeat
 from pathlib import Path
 from time import perf_counter
 from typing import TYPE_CHECKING
@@ -49,6 +48,7 @@ MAX_YAW_TO_LANE = np.radians(15.0)  # [rad] a SUMO vehicle on a normal lane poin
 BRAKE_LIGHT_THRESHOLD = 0.05  # brake input above which a CAV shows brake lights
 _PEDESTRIAN = int(ActorKind.PEDESTRIAN)  # plain ints in the per-tick code: enum attribute lookups are slow
 _BACKGROUND = int(Role.BACKGROUND)
+_BRAKELIGHT = np.int32(SIGNAL_BRAKELIGHT)
 
 
 @dataclass(frozen=True)
@@ -88,6 +88,7 @@ class _FixedColumns:
     length: np.ndarray
     width: np.ndarray
     valid: np.ndarray
+    sumo_row: dict[str, int]  # SUMO actor id -> its row among SUMO's actors
 
 
 @numba.njit(cache=True)
@@ -95,21 +96,37 @@ def _turn_towards_lane(
     x: np.ndarray,
     y: np.ndarray,
     yaw: np.ndarray,
-    half_len: np.ndarray,
-    rows: np.ndarray,
-    lane_heading: np.ndarray,
+    length: np.ndarray,
+    lane: np.ndarray,
+    lane_pos: np.ndarray,
+    kind: np.ndarray,
+    lane_internal: np.ndarray,
+    lane_pt_ptr: np.ndarray,
+    lane_length: np.ndarray,
+    key_offset: np.ndarray,
+    key: np.ndarray,
+    seg_heading: np.ndarray,
     max_off: float,
 ) -> None:
-    """In place: turn the boxes at ``rows`` about their front-bumper centre until they point at most
-    ``max_off`` [rad] off ``lane_heading`` (one value per row); yaw wrapped to [-pi, pi)."""
-    for k in range(rows.shape[0]):
-        i = rows[k]
-        deviation = (yaw[i] - lane_heading[k] + np.pi) % (2.0 * np.pi) - np.pi
-        bounded = lane_heading[k] + min(max(deviation, -max_off), max_off)
-        front_x = x[i] + half_len[i] * np.cos(yaw[i])
-        front_y = y[i] + half_len[i] * np.sin(yaw[i])
-        x[i] = front_x - half_len[i] * np.cos(bounded)
-        y[i] = front_y - half_len[i] * np.sin(bounded)
+    """In place: turn the boxes of vehicles (not pedestrians) on normal (non-internal) lanes about their
+    front-bumper centre until they point at most ``max_off`` [rad] off their lane's heading at
+    ``lane_pos``; yaw wrapped to [-pi, pi). The lane's segment at ``lane_pos`` is found as in
+    ``LaneIndex.heading_at`` (``key``, ``key_offset`` and ``seg_heading`` are the index's)."""
+    for i in range(x.shape[0]):
+        on = lane[i]
+        if on < 0 or kind[i] == _PEDESTRIAN or lane_internal[on]:
+            continue
+        q = key_offset[on] + min(max(lane_pos[i], 0.0), lane_length[on])
+        seg = np.searchsorted(key, q, side="right") - 1
+        seg = min(max(seg, lane_pt_ptr[on]), lane_pt_ptr[on + 1] - 2)
+        heading = seg_heading[seg]
+        half_len = 0.5 * length[i]
+        deviation = (yaw[i] - heading + np.pi) % (2.0 * np.pi) - np.pi
+        bounded = heading + min(max(deviation, -max_off), max_off)
+        front_x = x[i] + half_len * np.cos(yaw[i])
+        front_y = y[i] + half_len * np.sin(yaw[i])
+        x[i] = front_x - half_len * np.cos(bounded)
+        y[i] = front_y - half_len * np.sin(bounded)
         yaw[i] = (bounded + np.pi) % (2.0 * np.pi) - np.pi
 
 
@@ -229,10 +246,15 @@ class World:
         self._push_cavs(np.array([i]))
 
     def _push_cavs(self, rows: np.ndarray) -> None:
+        """Push the CAVs at ``rows`` (sorted indices) into SUMO."""
         st = self.cav_state
-        length = np.full(len(rows), ACTOR_TYPES["cav"].length)
-        self._cav_off_road[rows] = self.sumo.move_vehicles(
-            [self.cav_ids[i] for i in rows], st.x[rows], st.y[rows], st.yaw[rows], st.speed[rows], length
+        pick: slice | np.ndarray
+        ids, pick = self.cav_ids, slice(None)  # every CAV (the common case): views, no copies
+        if len(rows) != len(self.cav_ids):
+            ids, pick = [self.cav_ids[i] for i in rows], rows
+        length = np.full(len(ids), ACTOR_TYPES["cav"].length)
+        self._cav_off_road[pick] = self.sumo.move_vehicles(
+            ids, st.x[pick], st.y[pick], st.yaw[pick], st.speed[pick], length
         )
 
     # ------------------------------------------------------------------ scenario actors and props
@@ -302,8 +324,9 @@ class World:
         clock = self.timing
         t0 = perf_counter()
         active = np.flatnonzero(self.cav_active)
-        check = validate_controls(controls, [self.cav_ids[i] for i in active])
-        self.cav_clipped[active] += check.clipped
+        every = len(active) == len(self.cav_ids)  # the common case: slices, no copies
+        check = validate_controls(controls, self.cav_ids if every else [self.cav_ids[i] for i in active])
+        self.cav_clipped[slice(None) if every else active] += check.clipped
         self._advance_cavs(active, check.controls)
         self._push_layer()
         t1 = perf_counter()
@@ -321,7 +344,9 @@ class World:
         events = detect_collisions(snap)
         if len(events):
             # pedestrians brushing past each other in a crowd are not a driving event
-            events = events.select((events.kind_a != _PEDESTRIAN) | (events.kind_b != _PEDESTRIAN))
+            keep = (events.kind_a != _PEDESTRIAN) | (events.kind_b != _PEDESTRIAN)
+            if not keep.all():
+                events = events.select(keep)
             self.collisions = events
             self._hold_sumo_actors_after_collisions(snap)
         else:
@@ -340,12 +365,13 @@ class World:
         params, friction = self.config.cav_params, self.weather.friction
         if len(active) == len(self.cav_ids):  # the common case: no copies of the state
             self.cav_state = step_bicycle(st, controls, params, self.dt, friction)
+            self._cav_brake[:] = controls.brake
         else:
             sub = CavState(*(getattr(st, f)[active] for f in CavState.__dataclass_fields__))
             new = step_bicycle(sub, controls, params, self.dt, friction)
             for f in CavState.__dataclass_fields__:
                 getattr(st, f)[active] = getattr(new, f)
-        self._cav_brake[active] = controls.brake
+            self._cav_brake[active] = controls.brake
         self._push_cavs(active)
 
     def _push_layer(self) -> None:
@@ -370,49 +396,41 @@ class World:
         m = self.map
         st = self.cav_state
         cav = np.flatnonzero(self.cav_active)
-        cav_ids = [self.cav_ids[i] for i in cav]
-        rows = slice(None) if len(cav) == len(self.cav_ids) else cav  # a view when every CAV is active
+        every = len(cav) == len(self.cav_ids)  # the common case: views and the id list, no copies
+        cav_ids = self.cav_ids if every else [self.cav_ids[i] for i in cav]
+        rows = slice(None) if every else cav
         L = self.layer
         layer_lane = (
             m.index.nearest_lane(np.stack([L.x, L.y], axis=1), max_distance=2.0).lane
             if L.ids
             else np.zeros(0, np.int32)
         )
-        sumo = self.sumo.read(extra=cav_ids)
-        lookup = m._lane_lookup
-        sumo_lane = np.fromiter(map(lookup.get, sumo.lane_ids, repeat(-1)), np.int32, len(sumo.lane_ids))
-        sumo_x, sumo_y, sumo_yaw = self._straighten(sumo, sumo_lane)
+        sumo = self.sumo.read(m._lane_lookup, extra=cav_ids)
+        self._straighten(sumo)
         # a CAV's lane is where SUMO mapped it (heading-aware, within MATCH_RADIUS); off the road: -1
-        cav_lane = [
-            -1 if off else lookup.get(lid, -1)
-            for lid, off in zip(sumo.extra_lane_ids, self._cav_off_road[rows].tolist(), strict=True)
-        ]
+        cav_lane = np.where(self._cav_off_road[rows], np.int32(-1), sumo.extra_lane)
         fixed = self._fixed_columns(cav, cav_ids, sumo)
         n_c, n_l = len(cav), len(L.ids)
-        signals = np.concatenate(
-            [
-                np.where(self._cav_brake[rows] > BRAKE_LIGHT_THRESHOLD, SIGNAL_BRAKELIGHT, 0),
-                np.zeros(n_l, np.int32),
-                sumo.signals,
-            ]
-        ).astype(np.int32)
+        cav_signals = np.where(self._cav_brake[rows] > BRAKE_LIGHT_THRESHOLD, _BRAKELIGHT, np.int32(0))
+        signals = np.concatenate([cav_signals, np.zeros(n_l, np.int32), sumo.signals])
         if self._held:  # SUMO actors waiting after a collision show hazard lights
-            held = np.isin(fixed.ids[n_c + n_l :], list(self._held))
-            signals[n_c + n_l :][held] |= SIGNAL_BLINKER_EMERGENCY
+            row = fixed.sumo_row
+            held = [n_c + n_l + row[a] for a in self._held if a in row]
+            signals[held] |= SIGNAL_BLINKER_EMERGENCY
         return Snapshot(
             step=self.step_count,
             time=self.time,
             ids=fixed.ids,
             kind=fixed.kind,
             role=fixed.role,
-            x=np.concatenate([st.x[rows], L.x, sumo_x]),
-            y=np.concatenate([st.y[rows], L.y, sumo_y]),
-            yaw=np.concatenate([st.yaw[rows], L.yaw, sumo_yaw]),
+            x=np.concatenate([st.x[rows], L.x, sumo.x]),
+            y=np.concatenate([st.y[rows], L.y, sumo.y]),
+            yaw=np.concatenate([st.yaw[rows], L.yaw, sumo.yaw]),
             speed=np.concatenate([st.speed[rows], L.speed, sumo.speed]),
             accel=np.concatenate([st.accel[rows], np.zeros(n_l), sumo.accel]),
             length=fixed.length,
             width=fixed.width,
-            lane=np.concatenate([cav_lane, layer_lane, sumo_lane]).astype(np.int32),
+            lane=np.concatenate([cav_lane, layer_lane, sumo.lane]).astype(np.int32, copy=False),
             signals=signals,
             valid=fixed.valid,
             tls_state=self.lights.read(),
@@ -444,24 +462,32 @@ class World:
         columns["valid"] = np.ones(len(columns["ids"]), bool)
         for array in columns.values():
             array.flags.writeable = False
-        self._fixed = _FixedColumns(key=key, **columns)
+        sumo_row = {a: i for i, a in enumerate(sumo.ids)}
+        self._fixed = _FixedColumns(key=key, sumo_row=sumo_row, **columns)
         return self._fixed
 
-    def _straighten(self, sumo: SumoArrays, lane: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Centre x, y and yaw of SUMO's actors, with vehicles on normal lanes pointing at most
-        MAX_YAW_TO_LANE off the lane direction. SUMO's sublane model reports a vehicle's angle including
-        its last lateral move, which leaves a vehicle that stopped mid-manoeuvre at up to ~35 degrees to its
-        lane (its box overlapping its neighbours'); the box turns about the front bumper, SUMO's own
-        reference point."""
-        m = self.map
-        x, y, yaw = sumo.x.copy(), sumo.y.copy(), sumo.yaw.copy()
-        rows = np.flatnonzero((lane >= 0) & (sumo.kind != _PEDESTRIAN))
-        rows = rows[~m.lane_internal[lane[rows]]]
-        if len(rows) == 0:
-            return x, y, yaw
-        lane_heading = m.index.heading_at(lane[rows], sumo.lane_pos[rows])
-        _turn_towards_lane(x, y, yaw, 0.5 * sumo.length, rows, lane_heading, MAX_YAW_TO_LANE)
-        return x, y, yaw
+    def _straighten(self, sumo: SumoArrays) -> None:
+        """In place: SUMO's vehicles on normal lanes point at most MAX_YAW_TO_LANE off the lane direction.
+        SUMO's sublane model reports a vehicle's angle including its last lateral move, which leaves a
+        vehicle that stopped mid-manoeuvre at up to ~35 degrees to its lane (its box overlapping its
+        neighbours'); the box turns about the front bumper, SUMO's own reference point."""
+        m, index = self.map, self.map.index
+        _turn_towards_lane(
+            sumo.x,
+            sumo.y,
+            sumo.yaw,
+            sumo.length,
+            sumo.lane,
+            sumo.lane_pos,
+            sumo.kind,
+            m.lane_internal,
+            m.lane_pt_ptr,
+            m.lane_length,
+            index._key_offset,
+            index._key,
+            index.seg_heading,
+            MAX_YAW_TO_LANE,
+        )
 
     def _empty_snapshot(self) -> Snapshot:
         return Snapshot.from_rows(0, 0.0, np.zeros(0, dtype=str), x=np.zeros(0), y=np.zeros(0))
