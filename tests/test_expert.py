@@ -18,7 +18,9 @@ from tests.test_evaluator import ring_route
 EMPTY = BackgroundConfig(vehicles=0, pedestrians=0)
 
 
-def route_through(m: RoadMap, approach: str, before: float = 80.0, after: float = 40.0) -> tuple[Route, float]:
+def route_through(
+    m: RoadMap, approach: str, before: float = 80.0, after: float = 40.0
+) -> tuple[Route, float]:
     """A dense route along lane ``approach`` (from ``before`` m before its end) through its first junction
     link to ``after`` m along the outgoing lane; and the route distance of the approach's end (stop line)."""
     lane = m.lane(approach)
