@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import os
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -26,6 +27,13 @@ routes_app = typer.Typer(
 app.add_typer(routes_app, name="routes")
 console = Console()
 err_console = Console(stderr=True)
+
+
+MAX_WORKERS = 4  # default route workers at most (each holds a SUMO world, ~300 MB)
+
+
+def default_workers() -> int:
+    return max(1, min(os.cpu_count() or 1, MAX_WORKERS))
 
 
 def _fail(exc: Exception) -> None:
@@ -355,7 +363,12 @@ def evaluate(
         typer.Option(help="agent class as package.module:Class, or a bundled one: expert, autopilot, pid"),
     ] = "expert",
     out: Annotated[Path, typer.Option(help="output folder")] = Path("out/eval"),
-    workers: Annotated[int, typer.Option(min=1, help="routes run in parallel (local executor)")] = 1,
+    workers: Annotated[
+        int | None,
+        typer.Option(
+            min=1, help=f"routes run in parallel (local executor); default: CPUs, at most {MAX_WORKERS}"
+        ),
+    ] = None,
     resume: Annotated[
         bool, typer.Option(help="skip routes already finished in OUT, re-run crashed ones")
     ] = False,
@@ -432,7 +445,7 @@ def evaluate(
     if executor == "ray":
         runner: LocalExecutor | RayExecutor = RayExecutor(ray_address)
     elif executor == "local":
-        runner = LocalExecutor(workers)
+        runner = LocalExecutor(workers or default_workers())
     else:
         _fail(ValueError(f"--executor {executor!r}: use 'local' or 'ray'"))
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())

@@ -21,7 +21,9 @@ VanillaSignalizedTurnEncounterRedLight     lights: 5 s all red, then CAV 0's app
 
 "Left the junction + 10 m" and the drive counters are per charged CAV, along its own route; the scenario
 ends once every charged CAV still running has met it. Forced light states go through
-``World.lights.force_lanes`` and ``release`` (the program and phase resume).
+``World.lights.force_lanes`` and ``release`` (the program and phase resume, with the time the phase had
+left); a forced green with every other signal red is held ``FORCED_GREEN`` s at most, as with several CAVs
+another charged CAV may wait on one of those reds.
 """
 
 from __future__ import annotations
@@ -137,11 +139,14 @@ class SignalizedTurn(RouteRule):
         self.phase_index = -1
 
     def on_update(self, snap: Snapshot, progress: RouteProgress) -> bool:
-        k = min(int((self.time - self.activated_at) // LIGHT_PHASE), len(self.phases))
+        elapsed = self.time - self.activated_at
+        k = min(int(elapsed // LIGHT_PHASE), len(self.phases))
         if k < len(self.phases) and k != self.phase_index:
             ego, others = self.phases[k]
             self.world.lights.force_lanes([self.approach], ego, others)
             self.phase_index = k
+        if elapsed >= LIGHT_PHASE * (len(self.phases) - 1) + FORCED_GREEN:
+            self.world.lights.release()  # the last phase is held FORCED_GREEN s at most (a no-op later)
         if k == len(self.phases) and self.end_with_lights:
             return True
         return super().on_update(snap, progress)
