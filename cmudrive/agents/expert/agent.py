@@ -43,6 +43,7 @@ from cmudrive.sim.weather import get_weather
 HORIZON = 80  # [route points = m] the path ahead that is planned and checked
 PATH_OUT = 40  # [points] of the planned path kept in the decision record
 PROGRESS_WINDOW = 6  # [route points = m] searched ahead each tick (a CAV moves < 2 m per tick)
+RED_LIGHT_POINT = 0.8  # the red-light criterion's point lies this many half lengths behind the centre
 LOST = 3.0  # [m] a CAV this far from every route point of its search window is looked for on the whole route
 
 
@@ -280,8 +281,12 @@ class ExpertAgent(Agent):
         c, p = self.config, self.plans
         n = len(i)
         gap_all = p.entry_distance[i] - ego_s[:, None] - half_len[:, None]  # (n, E) bumper to line
-        # entries still ahead of the front bumper (a CAV whose bumper is past the line goes on)
-        upcoming = gap_all > -0.5
+        # the red-light criterion watches a point 0.8 half lengths behind the centre: until it has crossed
+        # a light's line, a red still applies (a CAV that stood with its nose over the line, say for a
+        # pedestrian, ran the red that came meanwhile); other entries are passed with the front bumper
+        rear_all = p.entry_distance[i] - (ego_s - RED_LIGHT_POINT * half_len)[:, None]
+        upcoming = np.where(p.entry_kind[i] == EntryKind.LIGHT, rear_all > 0.0, gap_all > -0.5)
+        hard = self.params.max_brake * self.friction
         terms = np.full(n, np.inf)
         whys = np.zeros(n, np.int8)
         dists = np.full(n, np.inf)
@@ -291,14 +296,15 @@ class ExpertAgent(Agent):
                 gap = float(gap_all[a, e])
                 if gap > c.light_reach:
                     break
+                line_gap = gap if gap > 0.0 else float(rear_all[a, e])  # what is left to stop in
                 kind = int(p.entry_kind[cav, e])
                 term, why = np.inf, Reason.NONE
                 permissive = False  # a minor green ('g'): go, but give way to the links with priority
                 if kind == EntryKind.LIGHT:
                     state = self._signal(snap, int(p.entry_link[cav, e]))
                     permissive = state == "g"
-                    if state in ("r", "u"):
-                        why = Reason.RED_LIGHT
+                    if state in ("r", "u") and (gap > 0.0 or v[a] ** 2 / (2.0 * line_gap) < 0.9 * hard):
+                        why = Reason.RED_LIGHT  # (past the line and too fast to stop in time: go on)
                     elif state == "y" and v[a] ** 2 / (2.0 * c.yellow_decel) < gap:
                         why = Reason.YELLOW_LIGHT
                 elif kind in (EntryKind.STOP_SIGN, EntryKind.ALLWAY_STOP) and self.stop_cleared[cav] < e:
@@ -321,8 +327,9 @@ class ExpertAgent(Agent):
                     why = Reason.YIELD
                 if why != Reason.NONE:
                     g = GAPS[why]
-                    if gap <= g.s0 + c.stop_reached:
-                        term = -c.idm.comfort_decel if v[a] > c.hold_speed else -c.idm.max_accel
+                    if gap <= g.s0 + c.stop_reached:  # at the line: stop there, as hard as that takes
+                        needed = v[a] ** 2 / (2.0 * max(line_gap, 0.1))
+                        term = -max(needed, c.idm.comfort_decel) if v[a] > c.hold_speed else -c.idm.max_accel
                     else:
                         term = float(
                             idm(
