@@ -307,3 +307,69 @@ def test_config_rejects_bad_values() -> None:
         BackgroundConfig(update_period=0)
     with pytest.raises(TypeError):
         BackgroundConfig(vehicle=3)  # type: ignore[call-arg]
+
+
+def test_initial_fill_leaves_room_to_stop_behind_a_cav(town: tuple[str | Path, RoadMap]) -> None:
+    """No vehicle starts behind a standing CAV on its road closer than it needs to stop from the lane's
+    speed at fill_decel, plus fill_stop_gap (at tick 0 SUMO cannot see the CAVs yet)."""
+    cfg = BackgroundConfig(vehicles=80, pedestrians=0)
+    with standing_world(town, cfg) as (world, bg):
+        m = world.map
+        yaw = world.cav_state.yaw
+        for rec in bg.spawns:
+            if not rec.initial:
+                continue
+            rel = cav_xy(world) - np.array([rec.x, rec.y])
+            along = rel[:, 0] * np.cos(rec.heading) + rel[:, 1] * np.sin(rec.heading)
+            across = -rel[:, 0] * np.sin(rec.heading) + rel[:, 1] * np.cos(rec.heading)
+            reach = m.lane_speed[rec.lane] ** 2 / (2.0 * cfg.fill_decel) + cfg.fill_stop_gap
+            same_way = np.cos(yaw - rec.heading) > 0.5
+            behind = same_way & (along > 0.0) & (along < reach) & (np.abs(across) < cfg.fill_behind_width)
+            assert not behind.any(), (rec.actor_id, along, across)
+
+
+def test_background_car_deadlocked_in_front_of_a_standing_cav_is_removed(
+    town: tuple[str | Path, RoadMap],
+) -> None:
+    """A background car standing inside a junction just ahead of a standing CAV goes after deadlock_time;
+    the same car standing on the CAV's lane ahead of it (a queue) stays."""
+    net, m = town
+    cfg = BackgroundConfig(vehicles=0, pedestrians=0, deadlock_time=2.0)
+    lanes = np.flatnonzero(m.driving & ~m.lane_internal & (m.lane_length > 40.0))
+    links = [(int(a), int(k)) for a in lanes for k in m.successor_links(int(a)) if m.link_via[k] >= 0]
+    lane, link = links[0]
+    out = int(m.link_to[link])
+    route = RoutePlanner(m).plan_lanes(LanePos(lane, m.lane_length[lane] - 8.0), LanePos(out, 5.0))
+    edges = [str(m.edge_ids[m.lane_edge[x]]) for x in (lane, out)]
+    with World(WorldConfig(net, seed=3), road_map=m) as world:
+        world.add_cav(route)
+        bg = BackgroundActivity(cfg)
+        world.background = bg
+        bg.populate(world)
+        world.sumo.add_vehicle(
+            "blocker",
+            "car",
+            edges,
+            int(Role.BACKGROUND),
+            depart_pos=float(m.lane_length[lane] - 1.0),
+            depart_lane=int(m.lane_index[lane]),
+            depart_speed=0.0,
+        )
+        brake = Controls(np.zeros(1), np.zeros(1), np.ones(1))
+        world.tick(brake)
+        libsumo.vehicle.setSpeed("blocker", 0.0)  # standing on the CAV's lane just ahead: a queue
+        for _ in range(80):
+            world.tick(brake)
+        assert "blocker" in world.sumo.actors and bg.stats["removed_deadlock"] == 0
+        libsumo.vehicle.setSpeed("blocker", 2.0)  # into the junction, then it stands there
+        for _ in range(200):
+            snap = world.tick(brake)
+            row = np.flatnonzero(snap.ids == "blocker")
+            if len(row) and m.lane_internal[snap.lane[row[0]]]:
+                libsumo.vehicle.setSpeed("blocker", 0.0)
+                break
+        else:
+            pytest.fail("the car never entered the junction")
+        for _ in range(80):
+            world.tick(brake)
+        assert "blocker" not in world.sumo.actors and bg.stats["removed_deadlock"] == 1
