@@ -14,10 +14,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import ClassVar
 
-import numba
 import numpy as np
 
 from cmudrive.agents.base import Agent, AgentSetupError, Observation, Observations, RouteSetup
+from cmudrive.agents.control import nearest_ahead
+from cmudrive.agents.corridor import first_in_corridor
 from cmudrive.maps import RoadMap, Route
 from cmudrive.sim.dynamics import Controls, VehicleParams
 from cmudrive.sim.snapshot import Snapshot
@@ -26,7 +27,7 @@ from cmudrive.sim.traffic_lights import link_states
 LOOKAHEAD_MIN = 4.0  # [m] pure-pursuit look-ahead at standstill
 LOOKAHEAD_GAIN = 0.8  # [s] look-ahead grows with speed
 HORIZON = 60  # [route points = m] how far ahead obstacles and lights are checked
-CORRIDOR = 0.8  # [m] lateral margin added to half the actor and CAV widths
+CORRIDOR = 0.8  # [m] lateral margin added to half the CAV width (to the actors' boxes)
 STOP_GAP = 4.0  # [m] standstill distance kept to an obstacle (bumper to bumper)
 LIGHT_GAP = 2.0  # [m] stop this far before a red light's stop line
 COMFORT_DECEL = 3.0  # [m/s^2] deceleration used to plan stopping profiles
@@ -84,10 +85,7 @@ class LaneFollowingAutopilot:
         return Controls(steer=steer, throttle=throttle, brake=brake)
 
     def _advance_progress(self, pos: np.ndarray, cav_index: np.ndarray) -> None:
-        window = self.progress[cav_index][:, None] + np.arange(20)[None, :]
-        window = np.minimum(window, self._pad - 1)
-        d = np.linalg.norm(self._xy[cav_index[:, None], window] - pos[:, None, :], axis=-1)
-        self.progress[cav_index] = window[np.arange(len(cav_index)), np.argmin(d, axis=1)]
+        self.progress[cav_index], _ = nearest_ahead(self._xy, self.progress, cav_index, pos, 20)
 
     def _finished(self, cav_index: np.ndarray) -> np.ndarray:
         lengths = np.array([len(self.routes[i]) for i in cav_index])
@@ -109,16 +107,19 @@ class LaneFollowingAutopilot:
 
     def _obstacle_speed(self, snap: Snapshot, cav_rows: np.ndarray, path: np.ndarray) -> np.ndarray:
         """Speed that lets each CAV stop STOP_GAP short of the first actor in its route corridor."""
-        first = _first_in_corridor(
+        first, _ = first_in_corridor(
             np.ascontiguousarray(path),
             np.asarray(cav_rows, np.int64),
-            np.asarray(snap.x, np.float64),
-            np.asarray(snap.y, np.float64),
-            np.asarray(snap.width, np.float64),
+            0.5 * snap.width[cav_rows] + CORRIDOR,
+            snap.x,
+            snap.y,
+            snap.yaw,
+            snap.length,
+            snap.width,
+            ~snap.valid[None, :].repeat(len(cav_rows), axis=0),
             HORIZON + 10.0,
-            CORRIDOR,
         )
-        gap = first.astype(float) - 0.5 * snap.length[cav_rows] - STOP_GAP - 2.0
+        gap = first.astype(float) - 0.5 * snap.length[cav_rows] - STOP_GAP
         return np.sqrt(2.0 * COMFORT_DECEL * np.maximum(gap, 0.0))
 
     def _light_speed(
@@ -141,33 +142,6 @@ class LaneFollowingAutopilot:
                     continue  # too close to stop for yellow: go on
                 out[row] = np.sqrt(2.0 * COMFORT_DECEL * max(gap, 0.0))
         return out
-
-
-@numba.njit(cache=True)
-def _first_in_corridor(
-    path: np.ndarray,  # (n, H, 2) each CAV's route ahead, one point per metre
-    cav_rows: np.ndarray,  # (n,) the CAVs' snapshot rows
-    x: np.ndarray,  # (A,) actor centres [m]
-    y: np.ndarray,
-    width: np.ndarray,  # (A,) [m]
-    reach: float,  # [m] actors farther than this from the CAV are not checked
-    margin: float,  # [m] lateral margin added to the half widths
-) -> np.ndarray:
-    """(n,) index of the first route point ahead whose corridor holds an actor, H when none: a loop
-    instead of (n, H, actors) arrays, which cost ~1.7 MB of temporaries a tick and slowed SUMO's step."""
-    n, horizon = path.shape[0], path.shape[1]
-    first = np.full(n, horizon, np.int64)
-    for i in range(n):
-        me = cav_rows[i]
-        for j in range(x.shape[0]):
-            if j == me or (x[j] - x[me]) ** 2 + (y[j] - y[me]) ** 2 >= reach * reach:
-                continue
-            half = 0.5 * width[j] + 0.5 * width[me] + margin
-            for h in range(first[i]):  # only points before the first hit so far can improve it
-                if (path[i, h, 0] - x[j]) ** 2 + (path[i, h, 1] - y[j]) ** 2 < half * half:
-                    first[i] = h
-                    break
-    return first
 
 
 class AutopilotAgent(Agent):

@@ -31,6 +31,20 @@ class WindowedPid:
         return self.kp * error + self.ki * self.history[rows].mean(axis=1) + self.kd * (error - previous)
 
 
+def nearest_ahead(
+    path: np.ndarray, progress: np.ndarray, rows: np.ndarray, pos: np.ndarray, window: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Route following's progress step: for CAVs ``rows`` at ``pos`` (n, 2), the index of the nearest point
+    of their padded paths ``path`` (K, P, 2) among the ``window`` points from ``progress[rows]`` on, and the
+    distance to it (n,) [m]. A short window keeps a route that passes close to itself from pulling the
+    progress onto its later part."""
+    idx = np.minimum(progress[rows][:, None] + np.arange(window)[None, :], path.shape[1] - 1)
+    d = np.linalg.norm(path[rows[:, None], idx] - pos[:, None, :], axis=-1)
+    best = np.argmin(d, axis=1)
+    n = np.arange(len(rows))
+    return idx[n, best], d[n, best]
+
+
 def lookahead_distance(speed: np.ndarray) -> np.ndarray:
     """[m] how far ahead on the path the steering aims: 0.1 m x (0.9755 v[km/h] + 1.9153), in 2.4-10.5 m."""
     return np.clip(0.1 * (LOOKAHEAD_A * speed * 3.6 + LOOKAHEAD_B), LOOKAHEAD_MIN, LOOKAHEAD_MAX)

@@ -26,6 +26,7 @@ from cmudrive.agents.control import (
     WindowedPid,
     heading_error,
     lookahead_distance,
+    nearest_ahead,
 )
 from cmudrive.sim.dynamics import Controls
 
@@ -91,12 +92,7 @@ class PidAgent(Agent):
     def run_step(self, obs: Observations) -> Controls:
         i = obs.cav_index
         pos = np.stack([obs.x, obs.y], axis=1)
-        # progress: nearest path point in a window ahead of the last one
-        window = np.minimum(
-            self.progress[i][:, None] + np.arange(SEARCH_WINDOW)[None, :], self.path.shape[1] - 1
-        )
-        d = np.linalg.norm(self.path[i[:, None], window] - pos[:, None, :], axis=-1)
-        self.progress[i] = window[np.arange(len(i)), np.argmin(d, axis=1)]
+        self.progress[i], _ = nearest_ahead(self.path, self.progress, i, pos, SEARCH_WINDOW)
         # lateral: heading error to the look-ahead point, in CARLA's sign (+ = right), scaled by 90 deg
         ahead = np.round(lookahead_distance(obs.speed) / PATH_STEP).astype(np.int64)
         target = self.path[i, np.minimum(self.progress[i] + ahead, self.path.shape[1] - 1)]

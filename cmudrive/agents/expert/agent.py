@@ -30,11 +30,18 @@ from typing import ClassVar
 import numpy as np
 
 from cmudrive.agents.base import Agent, AgentSetupError, Observation, Observations, RouteSetup
-from cmudrive.agents.control import STEER_GAINS, WindowedPid, heading_error, lookahead_distance
+from cmudrive.agents.control import (
+    STEER_GAINS,
+    WindowedPid,
+    heading_error,
+    lookahead_distance,
+    nearest_ahead,
+)
+from cmudrive.agents.corridor import first_in_corridor
 from cmudrive.agents.expert.detour import DetourPlanner, DetourReason
 from cmudrive.agents.expert.forecast import Forecaster
 from cmudrive.agents.expert.plan import EntryKind, RoutePlans, build_plans
-from cmudrive.agents.expert.rules import GAPS, IdmConfig, Reason, first_in_corridor, idm, reason_of_kind
+from cmudrive.agents.expert.rules import GAPS, IdmConfig, Reason, idm, reason_of_kind
 from cmudrive.maps import RoadMap
 from cmudrive.sim.dynamics import Controls, VehicleParams
 from cmudrive.sim.snapshot import ActorKind, Role, Snapshot
@@ -248,12 +255,9 @@ class ExpertAgent(Agent):
         back close to itself, as round a roundabout, must not pull the progress onto its later part);
         (n,) [m] of the CAV past that point along the route (its projection, clipped to [-0.5, 1])."""
         p = self.plans
-        window = np.minimum(
-            self.progress[i][:, None] + np.arange(PROGRESS_WINDOW)[None, :], p.xy.shape[1] - 2
-        )
-        d = np.linalg.norm(p.xy[i[:, None], window] - pos[:, None, :], axis=-1)
-        self.progress[i] = window[np.arange(len(i)), np.argmin(d, axis=1)]
-        for a in np.flatnonzero(d.min(axis=1) > LOST):  # far from the window: search the rest of the route
+        # (the last point is left out so that every progress has a next point)
+        self.progress[i], d = nearest_ahead(p.xy[:, :-1], self.progress, i, pos, PROGRESS_WINDOW)
+        for a in np.flatnonzero(d > LOST):  # far from the window: search the rest of the route
             k = int(i[a])
             rest = np.linalg.norm(p.xy[k, self.progress[k] : p.num_points[k]] - pos[a], axis=1)
             if len(rest) and rest.min() <= LOST:

@@ -36,18 +36,13 @@ class RoutePlans:
 
     xy: np.ndarray  # (n, P, 2) [m]
     heading: np.ndarray  # (n, P) [rad]
-    lane: np.ndarray  # (n, P) int32 map lane, -1 on the tail
     distance: np.ndarray  # (n, P) [m] along the route from its start
     allowed: np.ndarray  # (n, P) [m/s] the speed each point allows on its own (limit, curvature, junction)
-    in_junction: np.ndarray  # (n, P) bool
-    length: np.ndarray  # (n,) [m] route length
     num_points: np.ndarray  # (n,) points of each route without the tail
     # junction entries along each route, in route order, padded with -1 / inf
     entry_distance: np.ndarray  # (n, E) [m] route distance of the stop line / junction border
     entry_link: np.ndarray  # (n, E) int64 the map link the route takes there
-    entry_stop: np.ndarray  # (n, E) int64 stop line index (RoadMap.stop_*), -1 for none
     entry_kind: np.ndarray  # (n, E) int8 EntryKind
-    entry_junction: np.ndarray  # (n, E) int64
 
 
 def build_plans(
@@ -63,50 +58,36 @@ def build_plans(
     width = max(len(r) for r in routes) + TAIL
     xy = np.zeros((n, width, 2))
     heading = np.zeros((n, width))
-    lane = np.full((n, width), NO_INDEX, np.int32)
     distance = np.zeros((n, width))
     allowed = np.zeros((n, width))
-    in_junction = np.zeros((n, width), bool)
     entries = [_entries(road_map, r) for r in routes]
     e_width = max(1, max(len(e) for e in entries))
-    entry = {
-        "distance": np.full((n, e_width), np.inf),
-        "link": np.full((n, e_width), NO_INDEX, np.int64),
-        "stop": np.full((n, e_width), NO_INDEX, np.int64),
-        "kind": np.zeros((n, e_width), np.int8),
-        "junction": np.full((n, e_width), NO_INDEX, np.int64),
-    }
+    entry_distance = np.full((n, e_width), np.inf)
+    entry_link = np.full((n, e_width), NO_INDEX, np.int64)
+    entry_kind = np.zeros((n, e_width), np.int8)
     for i, r in enumerate(routes):
         k = len(r)
         tail = np.arange(1, width - k + 1, dtype=float)
         direction = np.array([np.cos(r.heading[-1]), np.sin(r.heading[-1])])
         xy[i, :k], xy[i, k:] = r.xy, r.xy[-1] + tail[:, None] * direction
         heading[i, :k], heading[i, k:] = r.heading, r.heading[-1]
-        lane[i, :k] = r.lane
         distance[i, :k], distance[i, k:] = r.distance, r.distance[-1] + tail
-        in_junction[i, :k] = r.in_junction
         limit = np.minimum(speed_factor * r.speed_limit, max_speed)
         limit = np.minimum(limit, _curve_speed(r, lateral_accel))
         near_junction = _within_distance_of(r.distance, r.in_junction, junction_cap_distance)
         limit = np.where(near_junction, np.minimum(limit, junction_cap), limit)
         allowed[i, :k], allowed[i, k:] = limit, limit[-1]
-        for j, (d, link, stop, kind, junction) in enumerate(entries[i]):
-            entry["distance"][i, j], entry["link"][i, j], entry["stop"][i, j] = d, link, stop
-            entry["kind"][i, j], entry["junction"][i, j] = kind, junction
+        for j, (d, link, kind) in enumerate(entries[i]):
+            entry_distance[i, j], entry_link[i, j], entry_kind[i, j] = d, link, kind
     return RoutePlans(
         xy=xy,
         heading=heading,
-        lane=lane,
         distance=distance,
         allowed=allowed,
-        in_junction=in_junction,
-        length=np.array([r.length for r in routes]),
         num_points=np.array([len(r) for r in routes]),
-        entry_distance=entry["distance"],
-        entry_link=entry["link"],
-        entry_stop=entry["stop"],
-        entry_kind=entry["kind"],
-        entry_junction=entry["junction"],
+        entry_distance=entry_distance,
+        entry_link=entry_link,
+        entry_kind=entry_kind,
     )
 
 
@@ -133,8 +114,8 @@ def _within_distance_of(distance: np.ndarray, flag: np.ndarray, reach: float) ->
     return out
 
 
-def _entries(road_map: RoadMap, route: Route) -> list[tuple[float, int, int, int, int]]:
-    """(distance, link, stop line, kind, junction) of every junction the route enters from a normal lane."""
+def _entries(road_map: RoadMap, route: Route) -> list[tuple[float, int, int]]:
+    """(distance, link, EntryKind) of every junction the route enters from a normal lane."""
     m = road_map
     out = []
     stop_of_lane = {int(lane): k for k, lane in enumerate(m.stop_lane)}
@@ -156,8 +137,7 @@ def _entries(road_map: RoadMap, route: Route) -> list[tuple[float, int, int, int
                 continue
             d = float(route.distance[int(nxt[0])])
         stop = stop_of_lane.get(int(a), NO_INDEX)
-        junction = int(m.link_junction[link])
-        out.append((d, link, stop, _entry_kind(m, link, stop, junction), junction))
+        out.append((d, link, _entry_kind(m, link, stop, int(m.link_junction[link]))))
     return out
 
 

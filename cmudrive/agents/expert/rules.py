@@ -1,5 +1,5 @@
-"""The expert's speed rules: IDM toward each relevant object, and the search for the first object in the
-route corridor ahead.
+"""The expert's speed rules: IDM toward each relevant object, and the kind of object found in the route
+corridor ahead (``cmudrive.agents.corridor``).
 
 IDM (Treiber's intelligent driver model) gives, for the object ahead at gap ``s`` moving at ``v_lead``::
 
@@ -16,7 +16,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import IntEnum
 
-import numba
 import numpy as np
 
 from cmudrive.sim.snapshot import ActorKind
@@ -91,42 +90,3 @@ def reason_of_kind(kind: np.ndarray, is_prop: np.ndarray) -> np.ndarray:
     out[kind == ActorKind.PEDESTRIAN] = Reason.PEDESTRIAN
     out[(kind == ActorKind.PROP) | is_prop] = Reason.OBSTACLE
     return out
-
-
-@numba.njit(cache=True)
-def first_in_corridor(
-    path: np.ndarray,  # (n, H, 2) each CAV's path ahead, one point per metre
-    cav_rows: np.ndarray,  # (n,) the CAVs' snapshot rows
-    half_width: np.ndarray,  # (n,) [m] half the CAV's width plus the lateral margin
-    x: np.ndarray,  # (A,) actor box centres [m]
-    y: np.ndarray,
-    yaw: np.ndarray,
-    length: np.ndarray,
-    width: np.ndarray,
-    skip: np.ndarray,  # (n, A) bool: actors not to look at for that CAV
-    reach: float,  # [m] actors farther than this from the CAV are not checked
-) -> tuple[np.ndarray, np.ndarray]:
-    """(n,) index of the first path point within ``half_width`` of an actor's oriented box (H when none)
-    and (n,) that actor's row (-1). A loop, not (n, H, A) arrays: it runs every tick."""
-    n, horizon = path.shape[0], path.shape[1]
-    first = np.full(n, horizon, np.int64)
-    row = np.full(n, -1, np.int64)
-    for i in range(n):
-        me = cav_rows[i]
-        px, py = path[i, 0, 0], path[i, 0, 1]
-        for j in range(x.shape[0]):
-            if j == me or skip[i, j]:
-                continue
-            if (x[j] - px) ** 2 + (y[j] - py) ** 2 >= reach * reach:
-                continue
-            c, s = np.cos(yaw[j]), np.sin(yaw[j])
-            hl, hw, r = 0.5 * length[j], 0.5 * width[j], half_width[i]
-            for h in range(first[i]):  # only points before the first hit so far can improve it
-                dx, dy = path[i, h, 0] - x[j], path[i, h, 1] - y[j]
-                lon = abs(c * dx + s * dy) - hl
-                lat = abs(-s * dx + c * dy) - hw
-                if lon < r and lat < r and max(lon, 0.0) ** 2 + max(lat, 0.0) ** 2 < r * r:
-                    first[i] = h
-                    row[i] = j
-                    break
-    return first, row
