@@ -101,6 +101,17 @@ class TrafficLights:
             libsumo.trafficlight.setPhaseDuration(tls, max(left - elapsed, 1.0))
 
 
+def link_state(road_map: RoadMap, tls_state: np.ndarray, link: int) -> str:
+    """The signal character of one map link (``NO_SIGNAL`` where it has no light): what
+    :func:`link_states` gives for that link, without building the whole array."""
+    m = road_map
+    tls, index = int(m.link_tls[link]), int(m.link_tls_index[link])
+    if tls < 0 or index < 0 or tls >= len(tls_state):
+        return NO_SIGNAL
+    state = str(tls_state[tls])
+    return state[index] if index < len(state) else NO_SIGNAL
+
+
 def link_states(road_map: RoadMap, tls_state: np.ndarray) -> np.ndarray:
     """(L,) signal character per link from the (T,) light strings of a snapshot."""
     m = road_map

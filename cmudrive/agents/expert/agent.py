@@ -45,6 +45,7 @@ from cmudrive.agents.expert.rules import GAPS, IdmConfig, Reason, idm, reason_of
 from cmudrive.maps import RoadMap
 from cmudrive.sim.dynamics import Controls, VehicleParams
 from cmudrive.sim.snapshot import ActorKind, Role, Snapshot
+from cmudrive.sim.traffic_lights import link_state
 from cmudrive.sim.weather import get_weather
 
 HORIZON = 80  # [route points = m] the path ahead that is planned and checked
@@ -305,7 +306,7 @@ class ExpertAgent(Agent):
                 term, why = np.inf, Reason.NONE
                 permissive = False  # a minor green ('g'): go, but give way to the links with priority
                 if kind == EntryKind.LIGHT:
-                    state = self._signal(snap, int(p.entry_link[cav, e]))
+                    state = link_state(self.road_map, snap.tls_state, int(p.entry_link[cav, e]))
                     permissive = state == "g"
                     if state in ("r", "u") and (gap > 0.0 or v[a] ** 2 / (2.0 * line_gap) < 0.9 * hard):
                         why = Reason.RED_LIGHT  # (past the line and too fast to stop in time: go on)
@@ -394,14 +395,6 @@ class ExpertAgent(Agent):
         hit = row >= 0
         gap[hit] = np.hypot(snap.x[row[hit]] - snap.x[rows[hit]], snap.y[row[hit]] - snap.y[rows[hit]])
         take(term, np.full(n, Reason.FORECAST, np.int8), row, gap)  # type: ignore[operator]
-
-    def _signal(self, snap: Snapshot, link: int) -> str:
-        m = self.road_map
-        tls, index = int(m.link_tls[link]), int(m.link_tls_index[link])
-        if tls < 0 or index < 0 or tls >= len(snap.tls_state):
-            return "O"
-        state = str(snap.tls_state[tls])
-        return state[index] if index < len(state) else "O"
 
     def _must_yield(self, snap: Snapshot, link: int, gap: float, v: float) -> bool:
         """A vehicle with priority over ``link`` is in the junction on a conflicting path, or will reach it

@@ -25,7 +25,7 @@ import numpy as np
 
 from cmudrive.bench.scenarios.base import RouteProgress, Scenario
 from cmudrive.bench.scenarios.flows import VehicleFlow
-from cmudrive.bench.scenarios.junctions import FORCED_GREEN, LIGHT_PHASE, exit_distance
+from cmudrive.bench.scenarios.junctions import exit_distance, red_then_green_stage
 from cmudrive.bench.scenarios.params import Param
 from cmudrive.bench.scenarios.placement import LanePoint
 from cmudrive.bench.scenarios.plan import PlanItem, path
@@ -119,8 +119,7 @@ class CrossingBicycleFlow(Scenario):
     def on_update(self, snap: Snapshot, progress: RouteProgress) -> bool:
         self.flow.update(snap)
         if self.signalized:
-            elapsed = self.time - self.activated_at
-            k = 0 if elapsed < LIGHT_PHASE else 1 if elapsed < LIGHT_PHASE + FORCED_GREEN else 2
+            k = red_then_green_stage(self.time - self.activated_at)
             if k != self.light_phase:
                 if k == 2:
                     self.world.lights.release()

@@ -49,6 +49,12 @@ LIGHT_PHASE = 5.0  # [s] each forced light phase
 FORCED_GREEN = 15.0
 
 
+def red_then_green_stage(elapsed: float) -> int:
+    """The stage of a scenario's "red, then green" light sequence ``elapsed`` s after activation: 0 the
+    LIGHT_PHASE s of red, 1 the forced green (at most FORCED_GREEN s), 2 released to the program."""
+    return 0 if elapsed < LIGHT_PHASE else 1 if elapsed < LIGHT_PHASE + FORCED_GREEN else 2
+
+
 def exit_distance(route_xy: np.ndarray, in_junction: np.ndarray, distance: np.ndarray, k0: int) -> float:
     """[m] route distance of the first point after the first junction past index ``k0`` (inf: none)."""
     inside = np.flatnonzero(in_junction[k0:]) + k0

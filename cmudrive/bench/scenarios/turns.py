@@ -27,7 +27,7 @@ import numpy as np
 
 from cmudrive.bench.scenarios.base import RouteProgress, Scenario
 from cmudrive.bench.scenarios.flows import VehicleFlow
-from cmudrive.bench.scenarios.junctions import AFTER_JUNCTION, FORCED_GREEN, LIGHT_PHASE, exit_distance
+from cmudrive.bench.scenarios.junctions import AFTER_JUNCTION, exit_distance, red_then_green_stage
 from cmudrive.bench.scenarios.params import Param
 from cmudrive.bench.scenarios.placement import LanePoint, walk
 from cmudrive.bench.scenarios.plan import PlanItem, path
@@ -134,8 +134,7 @@ class JunctionTurnFlow(Scenario):
         if self.flow is not None:
             self.flow.update(snap)
         if self.signalized:
-            elapsed = self.time - self.activated_at
-            k = 0 if elapsed < LIGHT_PHASE else 1 if elapsed < LIGHT_PHASE + FORCED_GREEN else 2
+            k = red_then_green_stage(self.time - self.activated_at)
             if k != self.light_phase:
                 lights = self.world.lights
                 if k == 2:
