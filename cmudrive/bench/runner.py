@@ -66,6 +66,20 @@ class OutputFolderError(ValueError):
     """The output folder holds records of an earlier run and this run is not a resume."""
 
 
+class RouteJob(Protocol):
+    """What a worker runs for one route: ``evaluate_route``'s signature. A job wraps it to do more in the
+    worker (``cmudrive.data`` collects a dataset shard); it must pickle (a module-level function, or an
+    instance of a module-level class)."""
+
+    def __call__(
+        self,
+        spec: RouteSpec,
+        make_agent: Callable[[], Agent],
+        config: EvalConfig,
+        hooks: RouteHooks,
+    ) -> RouteResult: ...
+
+
 @dataclass(frozen=True)
 class RouteTask:
     """Everything a worker needs to run one route (picklable)."""
@@ -74,6 +88,7 @@ class RouteTask:
     agent: str  # "package.module:Class"
     config: EvalConfig
     max_memory: float | None = None  # [GiB] address-space limit of the worker process (local executor)
+    job: RouteJob | None = None  # run instead of evaluate_route (same arguments); None: evaluate
 
 
 def run_task(task: RouteTask, progress: Any = None, hooks: RouteHooks | None = None) -> RouteResult:
@@ -89,6 +104,8 @@ def run_task(task: RouteTask, progress: Any = None, hooks: RouteHooks | None = N
 
     try:
         agent_cls = load_agent_class(task.agent)
+        if task.job is not None:
+            return task.job(task.spec, agent_cls, task.config, replace(hooks, tick=on_tick))
         return evaluate_route(task.spec, agent_cls, task.config, hooks=replace(hooks, tick=on_tick))
     except Exception as exc:
         return crashed_record(task.spec, exc)
@@ -391,6 +408,7 @@ __all__ = [
     "LocalExecutor",
     "OutputFolderError",
     "RayExecutor",
+    "RouteJob",
     "RouteTask",
     "crashed_record",
     "finished_route_ids",

@@ -1,0 +1,48 @@
+"""The driving dataset: expert rollouts on training routes as Hugging Face ``datasets`` Parquet shards, one
+per route, with waypoint, control and language labels (``docs/data.md``).
+
+    from cmudrive.data import collect, load_shards
+    import datasets
+    ds = datasets.load_dataset("parquet", data_dir="data/train", split="train")
+"""
+
+from cmudrive.data.collect import BenchmarkRouteError, CollectSummary, ShardJob, check_not_benchmark, collect
+from cmudrive.data.collector import SAMPLE_EVERY, CollectingAgent, RouteInfo
+from cmudrive.data.labels import (
+    PATH_POINTS,
+    PATH_SPACING,
+    SPEED_POINTS,
+    SPEED_STEP_TICKS,
+    next_target_points,
+    to_ego,
+    waypoint_labels,
+)
+from cmudrive.data.schema import COLUMNS, features, pack_occupancy, unpack_occupancy
+from cmudrive.data.shards import ShardWriter, load_shards, shard_complete, shard_path, shard_paths
+
+__all__ = [
+    "COLUMNS",
+    "PATH_POINTS",
+    "PATH_SPACING",
+    "SAMPLE_EVERY",
+    "SPEED_POINTS",
+    "SPEED_STEP_TICKS",
+    "BenchmarkRouteError",
+    "CollectSummary",
+    "CollectingAgent",
+    "RouteInfo",
+    "ShardJob",
+    "ShardWriter",
+    "check_not_benchmark",
+    "collect",
+    "features",
+    "load_shards",
+    "next_target_points",
+    "pack_occupancy",
+    "shard_complete",
+    "shard_path",
+    "shard_paths",
+    "to_ego",
+    "unpack_occupancy",
+    "waypoint_labels",
+]

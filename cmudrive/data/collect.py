@@ -1,0 +1,182 @@
+"""Collect a dataset: the expert on many routes, one Parquet shard per route (``cmudrive data collect``).
+
+Routes run through the benchmark's own runner (``cmudrive.bench.runner``: a fresh worker process per route
+with the watchdog, or Ray tasks); in each worker a :class:`ShardJob` runs the ordinary route loop with a
+:class:`~cmudrive.data.collector.CollectingAgent` around the expert and renames the route's shard into place
+when the route has run to its end. A route that crashes (the simulation or the expert raised, the worker
+died) leaves no shard, only its record in ``DIR/_routes/`` with the error, and the other routes go on;
+``resume`` runs exactly the routes without a complete shard.
+
+Training data must not come from the benchmark: :func:`check_not_benchmark` refuses routes whose id or
+scenario place is one of ``cmudrive220``'s (``cmudrive44`` is a subset of it) unless told otherwise.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from cmudrive.agents.base import Agent
+from cmudrive.agents.expert import ExpertAgent
+from cmudrive.bench.evaluator import EvalConfig, RouteHooks, evaluate_route
+from cmudrive.bench.observe import SensorConfig
+from cmudrive.bench.records import STATUS_AGENT_CRASHED, STATUS_SIM_CRASHED, RouteResult, record_stem
+from cmudrive.bench.routes import RouteSpec, read_routes
+from cmudrive.bench.runner import Executor, ProgressCallback, RouteTask, write_json_atomic
+from cmudrive.data.collector import SAMPLE_EVERY, CollectingAgent, RouteInfo
+from cmudrive.data.schema import features
+from cmudrive.data.shards import RECORDS_DIR, ShardWriter, shard_complete, shard_path
+
+EXPERT = "cmudrive.agents.expert:ExpertAgent"
+BENCHMARK_SETS = ("cmudrive220",)  # cmudrive44's routes are cmudrive220 routes
+SAME_PLACE = 30.0  # [m] scenario triggers of one type closer than this are one place (the generator's rule)
+CRASHED = (STATUS_AGENT_CRASHED, STATUS_SIM_CRASHED)
+
+
+class BenchmarkRouteError(ValueError):
+    """A route to collect on is one of the benchmark's (by id or by scenario place)."""
+
+
+@dataclass(frozen=True)
+class ShardJob:
+    """Runs one route with the collecting agent in a worker and writes its shard (a ``RouteJob``)."""
+
+    out: str
+    sample_every: int = SAMPLE_EVERY
+    sensors: SensorConfig = field(default_factory=SensorConfig)
+
+    def __call__(
+        self,
+        spec: RouteSpec,
+        make_agent: Callable[[], Agent],
+        config: EvalConfig,
+        hooks: RouteHooks,
+    ) -> RouteResult:
+        info = RouteInfo(
+            route_id=spec.id,
+            scenario_type=spec.scenarios[0].type if spec.scenarios else "",
+            weather=spec.weather,
+            town=spec.town,
+            num_cavs=len(spec.cavs),
+        )
+        writer = ShardWriter(Path(self.out), spec.id, features(self.sensors.occupancy))
+        made: list[CollectingAgent] = []
+
+        def make() -> CollectingAgent:
+            expert = make_agent()
+            if not isinstance(expert, ExpertAgent):
+                raise TypeError(f"data collection needs the ExpertAgent, got {type(expert).__name__}")
+            made.append(CollectingAgent(expert, info, writer, self.sample_every, self.sensors, spec.seed))
+            return made[0]
+
+        try:
+            result = evaluate_route(spec, make, config, hooks=hooks)
+            if result.status not in CRASHED and made:
+                made[0].finish()
+            else:
+                writer.abort()
+        except BaseException:
+            writer.abort()
+            raise
+        return result
+
+
+def check_not_benchmark(specs: Sequence[RouteSpec], benchmark: Sequence[RouteSpec] | None = None) -> None:
+    """Raise :class:`BenchmarkRouteError` naming every route of ``specs`` whose id is a benchmark route's,
+    or whose scenario lies within SAME_PLACE of a benchmark scenario of the same type in the same town."""
+    if benchmark is None:
+        bench_dir = Path(__file__).resolve().parents[1] / "assets" / "routes"
+        benchmark = [s for name in BENCHMARK_SETS for s in read_routes(bench_dir / f"{name}.xml")]
+    ids = {s.id for s in benchmark}
+    places: dict[tuple[str, str], list[tuple[float, float]]] = {}
+    for s in benchmark:
+        for sc in s.scenarios:
+            x, y, _ = sc.map_trigger()
+            places.setdefault((s.town, sc.type), []).append((x, y))
+    bad = []
+    for s in specs:
+        if s.id in ids:
+            bad.append(f"{s.id} (a benchmark route id)")
+            continue
+        for sc in s.scenarios:
+            x, y, _ = sc.map_trigger()
+            near = [
+                p for p in places.get((s.town, sc.type), []) if math.hypot(x - p[0], y - p[1]) < SAME_PLACE
+            ]
+            if near:
+                bad.append(f"{s.id} ({sc.type} at a benchmark place in {s.town})")
+                break
+    if bad:
+        shown = ", ".join(bad[:10]) + (f" and {len(bad) - 10} more" if len(bad) > 10 else "")
+        raise BenchmarkRouteError(
+            f"{len(bad)} route(s) are benchmark routes, never training data: {shown} "
+            "(--allow-benchmark-routes overrides this)"
+        )
+
+
+@dataclass
+class CollectSummary:
+    written: list[str] = field(default_factory=list)  # route ids whose shard was written by this run
+    skipped: list[str] = field(default_factory=list)  # complete shards found (resume)
+    failed: dict[str, str] = field(default_factory=dict)  # route id -> the error's last line
+
+
+def collect(
+    routes: Sequence[RouteSpec],
+    out: Path,
+    executor: Executor,
+    config: EvalConfig | None = None,
+    resume: bool = False,
+    allow_benchmark: bool = False,
+    sample_every: int = SAMPLE_EVERY,
+    on_result: Callable[[RouteResult, bool], None] | None = None,
+    on_progress: ProgressCallback | None = None,
+) -> CollectSummary:
+    """Collect shards for ``routes`` into ``out`` (module docstring). ``on_result(record, shard_written)``
+    hears of every route as it finishes. Without ``resume``, ``out`` must hold no shard yet."""
+    if not routes:
+        raise ValueError("no route to collect on")
+    ids = [s.id for s in routes]
+    dup = sorted({i for i in ids if ids.count(i) > 1})
+    if dup:
+        raise ValueError(f"duplicate route ids: {dup}")
+    if not allow_benchmark:
+        check_not_benchmark(routes)
+    out = Path(out)
+    done = {s.id for s in routes if shard_complete(shard_path(out, s.id))}
+    if done and not resume:
+        raise FileExistsError(
+            f"{out} already holds {len(done)} shard(s) of these routes: continue with --resume, "
+            "or write to another folder"
+        )
+    out.mkdir(parents=True, exist_ok=True)
+    config = config or EvalConfig()
+    job = ShardJob(str(out.resolve()), sample_every, config.sensors)
+    tasks = [RouteTask(s, EXPERT, config, job=job) for s in routes if s.id not in done]
+    summary = CollectSummary(skipped=[i for i in ids if i in done])
+    for result in executor.run(tasks, on_progress):
+        write_json_atomic(out / RECORDS_DIR / f"{record_stem(result.route_id)}.json", result.to_json())
+        written = shard_complete(shard_path(out, result.route_id))
+        if written:
+            summary.written.append(result.route_id)
+        else:
+            summary.failed[result.route_id] = _last_line(result.error) or result.status
+        if on_result is not None:
+            on_result(result, written)
+    return summary
+
+
+def _last_line(error: str | None) -> str:
+    lines = (error or "").strip().splitlines()
+    return lines[-1] if lines else ""
+
+
+__all__ = [
+    "BenchmarkRouteError",
+    "CollectSummary",
+    "ShardJob",
+    "check_not_benchmark",
+    "collect",
+]

@@ -1,0 +1,333 @@
+"""The collecting agent: the privileged expert drives, and every ``sample_every``-th tick each active CAV
+becomes one dataset row (inputs, expert labels, language), written to the route's shard.
+
+It runs inside the ordinary evaluation loop (``cmudrive.bench.evaluator.evaluate_route``) as the route's
+agent: it declares only ``PRIVILEGED`` (what the expert reads) and computes the sensors itself, through the
+evaluator's own :class:`~cmudrive.bench.observe.ObservationBuilder`, on sample ticks only: the camera,
+visibility, occupancy and V2V merge cost nothing on the other four ticks of five. V2V uses the ideal link
+(no latency, loss or pose noise) and the default partners (the closest CAV in front).
+
+Labels need the future (the path the CAV drives next, its positions 2.5 s on, the expert's target speed
+over the next 1.25 s for the language), so a sample tick is kept in memory, its images already encoded,
+until every CAV of it has driven ``PATH_REACH`` metres and ``LABEL_TICKS`` ticks further or left the world;
+then its rows are computed and written as a row group.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+
+from cmudrive.agents.base import Agent, Observation, Observations, RouteSetup
+from cmudrive.agents.expert import ExpertAgent, Reason
+from cmudrive.agents.expert.agent import ExpertDecision
+from cmudrive.bench.observe import ObservationBuilder, SensorConfig
+from cmudrive.data.labels import (
+    PATH_POINTS,
+    PATH_SPACING,
+    SPEED_POINTS,
+    SPEED_STEP_TICKS,
+    next_target_points,
+    to_ego,
+    waypoint_labels,
+)
+from cmudrive.data.language import Language, LanguageInputs, describe
+from cmudrive.data.schema import CAMERA_FORMAT, COLUMNS, encode_bev, encode_image, pack_occupancy
+from cmudrive.data.shards import ROW_GROUP, ShardWriter
+from cmudrive.maps import RoadMap, load_scenery
+from cmudrive.sim.dynamics import Controls
+from cmudrive.sim.snapshot import ActorKind, Snapshot
+from cmudrive.sim.weather import get_weather
+
+SAMPLE_EVERY = 5  # [ticks] 4 Hz at 20 Hz
+LANGUAGE_TICKS = 25  # [ticks] the expert's target speed is looked up at t+5 .. t+25 for the language
+LABEL_TICKS = max(SPEED_POINTS * SPEED_STEP_TICKS, LANGUAGE_TICKS)  # [ticks] of future a sample needs
+PATH_REACH = (PATH_POINTS - 1) * PATH_SPACING  # [m] of future path a sample needs
+TARGET_MIN_AHEAD = 7.5  # [m] a sparse target point closer than this along the route counts as reached
+SENSORS = frozenset(
+    {
+        Observation.PRIVILEGED,
+        Observation.VISIBILITY,
+        Observation.CAMERA,
+        Observation.OCCUPANCY,
+        Observation.MERGED_OCCUPANCY,
+    }
+)
+
+
+@dataclass(frozen=True)
+class RouteInfo:
+    """What a row says about its route (the agent's ``RouteSetup`` has no scenario type)."""
+
+    route_id: str
+    scenario_type: str
+    weather: str
+    town: str
+    num_cavs: int
+
+
+@dataclass
+class _SampleTick:
+    """One sample tick, its rows' inputs already encoded, waiting for its labels."""
+
+    tick: int
+    time: float
+    snap: Snapshot
+    decision: ExpertDecision
+    rows: np.ndarray  # (n,) snapshot rows of the CAVs, decision.cav_index order
+    visibility: Any  # cmudrive.sensors.Visibility
+    columns: dict[str, list[Any]] = field(default_factory=dict)  # inputs and controls, one entry per CAV
+
+
+class _Trace:
+    """Per tick and CAV: position, heading, speed, odometer and the expert's target speed (NaN when not in
+    the world), grown as the route runs; and each CAV's last planned path."""
+
+    def __init__(self, num_cavs: int, capacity: int = 1024) -> None:
+        self.data = np.full((capacity, num_cavs, 6), np.nan)  # x, y, yaw, speed, odometer, target speed
+        self.last_tick = np.full(num_cavs, -1, np.int64)
+        self.plan: list[np.ndarray] = [np.zeros((0, 2)) for _ in range(num_cavs)]
+
+    def add(self, tick: int, obs: Observations, decision: ExpertDecision) -> None:
+        while tick >= len(self.data):
+            self.data = np.concatenate([self.data, np.full_like(self.data, np.nan)])
+        i = obs.cav_index
+        odo = np.zeros(len(i))
+        seen = self.last_tick[i] >= 0
+        if seen.any():
+            prev = self.data[self.last_tick[i[seen]], i[seen]]
+            step = np.hypot(obs.x[seen] - prev[:, 0], obs.y[seen] - prev[:, 1])
+            odo[seen] = prev[:, 4] + step
+        self.data[tick, i] = np.stack([obs.x, obs.y, obs.yaw, obs.speed, odo, decision.target_speed], axis=1)
+        self.last_tick[i] = tick
+        for a, k in enumerate(i):
+            self.plan[int(k)] = decision.path[a]
+
+
+class CollectingAgent(Agent):
+    """Wraps the :class:`ExpertAgent`: it drives; this records (module docstring)."""
+
+    observations: ClassVar[frozenset[Observation]] = frozenset({Observation.PRIVILEGED})
+
+    def __init__(
+        self,
+        expert: ExpertAgent,
+        info: RouteInfo,
+        writer: ShardWriter,
+        sample_every: int = SAMPLE_EVERY,
+        sensors: SensorConfig | None = None,
+        seed: int = 0,
+    ) -> None:
+        if sample_every < 1:
+            raise ValueError(f"sample_every must be >= 1 tick, got {sample_every}")
+        self.expert, self.info, self.writer = expert, info, writer
+        self.sample_every = sample_every
+        self.sensor_config = sensors or SensorConfig()
+        self.seed = seed
+        self.pending: list[_SampleTick] = []
+        self.buffer: dict[str, list[Any]] = {k: [] for k in COLUMNS}
+        self.active = np.zeros(info.num_cavs, bool)
+        self.samples = 0
+
+    # ------------------------------------------------------------------ agent interface
+    def setup(self, route: RouteSetup) -> None:
+        self.expert.setup(route)
+        assert route.road_map is not None  # the expert's setup refuses a set-up without it
+        self.road_map: RoadMap = route.road_map
+        self.observer = ObservationBuilder(
+            SENSORS,
+            len(route.cavs),
+            get_weather(route.weather),
+            load_scenery(self.road_map),
+            config=self.sensor_config,
+            rng=np.random.default_rng([self.seed, 1]),
+            road_map=self.road_map,
+        )
+        self.targets = [c.target_points for c in route.cavs]
+        self.target_distance = []
+        for c in route.cavs:
+            dense = c.dense_route
+            assert dense is not None
+            near = np.argmin(
+                np.hypot(
+                    dense.xy[None, :, 0] - c.target_points[:, None, 0],
+                    dense.xy[None, :, 1] - c.target_points[:, None, 1],
+                ),
+                axis=1,
+            )
+            self.target_distance.append(dense.distance[near])
+        self.trace = _Trace(len(route.cavs))
+        self._warm_up(route)
+
+    def _warm_up(self, route: RouteSetup) -> None:
+        """Sense once at set-up, on a snapshot of the CAVs at their starts: the sensors' numba kernels
+        load (or, in a fresh install, compile for a minute) within the set-up's time limit rather than in
+        the first sample tick's ``run_step``, whose limit is seconds."""
+        starts = [c.dense_route for c in route.cavs]
+        k = len(starts)
+        snap = Snapshot.from_rows(
+            0,
+            0.0,
+            np.array([], str),
+            ids=np.array([f"cav{j}" for j in range(k)]),
+            x=np.array([r.xy[0, 0] for r in starts if r is not None]),
+            y=np.array([r.xy[0, 1] for r in starts if r is not None]),
+            yaw=np.array([r.heading[0] for r in starts if r is not None]),
+            speed=np.zeros(k),
+            role=np.zeros(k, np.int8),
+            kind=np.zeros(k, np.int8),
+            length=np.full(k, 4.9),
+            width=np.full(k, 2.1),
+        )
+        warm = ObservationBuilder(
+            SENSORS,
+            k,
+            self.observer.weather,
+            self.observer.scenery,
+            config=self.sensor_config,
+            road_map=self.road_map,
+        )
+        warm.camera = self.observer.camera  # the meshes are built once
+        warm.build(snap, 0, np.arange(k), np.arange(k), privileged=True)
+
+    def run_step(self, obs: Observations) -> Controls:
+        controls = self.expert.run_step(obs)
+        decision = self.expert.decision
+        assert decision is not None and obs.snapshot is not None
+        self.trace.add(obs.tick, obs, decision)
+        self.active[:] = False
+        self.active[obs.cav_index] = True
+        if obs.tick % self.sample_every == 0 and len(obs.cav_index):
+            self.pending.append(self._sample(obs, decision, controls))
+        self._flush(obs.tick)
+        return controls
+
+    def finish(self) -> None:
+        """The route has ended: label what is pending with the future there is, write it, close the shard."""
+        self.active[:] = False
+        self._flush(None)
+        self._write(force=True)
+        self.writer.close()
+
+    # ------------------------------------------------------------------ sampling
+    def _sample(self, obs: Observations, decision: ExpertDecision, controls: Controls) -> _SampleTick:
+        snap = obs.snapshot
+        assert snap is not None
+        rows = _rows_of(snap, obs.cav_index)
+        sensed = self.observer.build(snap, obs.tick, rows, obs.cav_index, privileged=True)
+        assert sensed.camera is not None and sensed.occupancy is not None
+        assert sensed.merged_occupancy is not None and sensed.partner is not None
+        own = pack_occupancy(sensed.occupancy)
+        merged = pack_occupancy(sensed.merged_occupancy)
+        n = len(obs.cav_index)
+        cols: dict[str, list[Any]] = {
+            "camera": [encode_image(sensed.camera[a], CAMERA_FORMAT) for a in range(n)],
+            "occupancy": list(own),
+            "merged_occupancy": list(merged),
+            "merged_bev": [encode_bev(merged[a], self.sensor_config.occupancy) for a in range(n)],
+            "partner": [int(p) for p in sensed.partner],
+            "speed": [float(v) for v in obs.speed],
+            "throttle": [float(v) for v in controls.throttle],
+            "steer": [float(v) for v in controls.steer],
+            "brake": [float(v) for v in controls.brake],
+        }
+        targets, others = [], []
+        assert obs.other_cavs is not None
+        for a, k in enumerate(obs.cav_index):
+            k = int(k)
+            ego_s = float(self.expert.plans.distance[k, decision.route_index[a]])
+            tp = next_target_points(self.targets[k], self.target_distance[k], ego_s, TARGET_MIN_AHEAD)
+            targets.append(to_ego(tp, obs.x[a], obs.y[a], obs.yaw[a]).astype(np.float32))
+            rel = obs.other_cavs[a]
+            others.append([[float(j), *map(float, rel[j])] for j in np.flatnonzero(~np.isnan(rel[:, 0]))])
+        cols["target_points"] = targets
+        cols["other_cavs"] = others
+        assert self.observer.last_visibility is not None
+        return _SampleTick(obs.tick, obs.time, snap, decision, rows, self.observer.last_visibility, cols)
+
+    def _ready(self, sample: _SampleTick, now: int | None) -> bool:
+        """Every CAV of the sample has its future: left the world, or LABEL_TICKS and PATH_REACH ahead."""
+        if now is None:
+            return True
+        if now < sample.tick + LABEL_TICKS:
+            return False
+        i = sample.decision.cav_index
+        gone = ~self.active[i]
+        odo_then = self.trace.data[sample.tick, i, 4]
+        odo_now = self.trace.data[now, i, 4]
+        return bool(np.all(gone | (odo_now - odo_then >= PATH_REACH)))
+
+    def _flush(self, now: int | None) -> None:
+        while self.pending and self._ready(self.pending[0], now):
+            self._label(self.pending.pop(0))
+        self._write(force=False)
+
+    # ------------------------------------------------------------------ labels and rows
+    def _label(self, s: _SampleTick) -> None:
+        d, data = s.decision, self.trace.data
+        i = d.cav_index
+        n = len(i)
+        future_ts = np.full((n, LANGUAGE_TICKS // SAMPLE_EVERY), np.nan)
+        for j, dt in enumerate(range(SAMPLE_EVERY, LANGUAGE_TICKS + 1, SAMPLE_EVERY)):
+            if s.tick + dt < len(data):
+                future_ts[:, j] = data[s.tick + dt, i, 5]
+        language = describe(
+            LanguageInputs(
+                snap=s.snap,
+                decision=d,
+                cav_rows=s.rows,
+                visibility=s.visibility,
+                future_target_speed=future_ts,
+                num_cavs=self.info.num_cavs,
+                road_map=self.road_map,
+            )
+        )
+        b = self.buffer
+        for a, k in enumerate(i):
+            k = int(k)
+            last = int(self.trace.last_tick[k])
+            traj = data[s.tick : last + 1, k]
+            traj = traj[~np.isnan(traj[:, 0])]
+            path, speed_wp = waypoint_labels(
+                traj[:, :2], float(traj[0, 2]), self.trace.plan[k], float(traj[-1, 3])
+            )
+            b["route_id"].append(self.info.route_id)
+            b["scenario_type"].append(self.info.scenario_type)
+            b["weather"].append(self.info.weather)
+            b["town"].append(self.info.town)
+            b["num_cavs"].append(self.info.num_cavs)
+            b["cav"].append(k)
+            b["tick"].append(s.tick)
+            b["time"].append(s.time)
+            for name, values in s.columns.items():
+                b[name].append(values[a])
+            b["path"].append(path)
+            b["speed_waypoints"].append(speed_wp)
+            b["reason"].append(Reason(int(d.reason[a])).name)
+            b["object_id"].append(str(d.object_id[a]))
+            kind = int(d.object_kind[a])
+            b["object_kind"].append(ActorKind(kind).name if kind >= 0 else "")
+            dist = float(d.distance[a])
+            b["object_distance"].append(dist if np.isfinite(dist) else float("nan"))
+            b["target_speed"].append(float(d.target_speed[a]))
+            lang: Language = language[a]
+            b["commentary"].append(lang.commentary)
+            b["communication"].append(lang.communication)
+            b["partner_label"].append(int(lang.partner_label))
+        self.samples += n
+        # a labelled tick's snapshot and visibility are no longer needed
+        s.columns.clear()
+
+    def _write(self, force: bool) -> None:
+        if len(self.buffer["route_id"]) >= ROW_GROUP or (force and self.buffer["route_id"]):
+            self.writer.write(self.buffer)
+            self.buffer = {k: [] for k in COLUMNS}
+
+
+def _rows_of(snap: Snapshot, cav_index: np.ndarray) -> np.ndarray:
+    """Snapshot rows of the CAVs ``cav_index``, in that order."""
+    rows, index = snap.cav_rows()
+    row_of = dict(zip(index.tolist(), rows.tolist(), strict=True))
+    return np.array([row_of[int(k)] for k in cav_index], np.int64)
