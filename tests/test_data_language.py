@@ -213,6 +213,7 @@ def test_without_an_object_reason_the_critical_object_is_the_first_in_the_path()
         (5.0, [5.6, 5.6, 5.6, 5.6, 5.6], "accelerate"),
         (5.0, [4.4, 4.4, 4.4, 4.4, 4.4], "decelerate"),
         (0.0, [1.0, 2.0, 3.0, np.nan, np.nan], "accelerate"),  # the mean of the known samples: 2 m/s
+        (0.1, [0.4, 0.4, 0.4, 0.4, 0.4], "accelerate"),  # standing, about to move
         (5.0, [np.nan] * 5, "decelerate"),  # the CAV ended: the current target speed (4 m/s)
     ],
 )

@@ -155,7 +155,7 @@ def describe(inputs: LanguageInputs) -> list[Language]:
     critical = critical_rows(snap, d, rows)
     partner = partners(inputs.visibility, d.cav_index, critical, snap, rows, inputs.num_cavs)
     walker = nearest_walkers(snap, rows)
-    names = _Names(snap, rows)
+    names = _Names(snap, rows, np.concatenate([d.object_row, d.detour_row, critical, walker]))
     out = []
     for a in range(n):
         detour = _detour_action(names, a, int(d.detour_reason[a]), int(d.detour_row[a]))
@@ -177,7 +177,11 @@ def describe(inputs: LanguageInputs) -> list[Language]:
 # ------------------------------------------------------------------ speed
 def speed_actions(speed: np.ndarray, future_target: np.ndarray, target_now: np.ndarray) -> np.ndarray:
     """(n,) SPEED_TEXT key from the current speed (n,) [m/s] vs the mean expert target speed over the next
-    samples (n, F) [m/s] (NaN once the CAV ended; all NaN: the current target speed)."""
+    samples (n, F) [m/s] (NaN once the CAV ended; all NaN: the current target speed ``target_now``).
+
+    Both below STOPPED: stay stopped; the target below it: stop; standing with a target above it, or a
+    target more than SPEED_BAND above the speed: accelerate; more than SPEED_BAND below: decelerate; else
+    keep the speed."""
     future = np.asarray(future_target, np.float64)
     known = np.isfinite(future)
     count = known.sum(axis=1)
@@ -186,7 +190,7 @@ def speed_actions(speed: np.ndarray, future_target: np.ndarray, target_now: np.n
         [
             (mean < STOPPED) & (speed < STOPPED),
             mean < STOPPED,
-            mean > speed + SPEED_BAND,
+            (mean > speed + SPEED_BAND) | (speed < STOPPED),  # standing and about to move: start
             mean < speed - SPEED_BAND,
         ],
         ["stopped", "stop", "accelerate", "decelerate"],
@@ -336,19 +340,27 @@ class _Names:
     """Descriptions ("the red car ahead on the left") of snapshot rows as seen from each CAV, with the type
     and colour of each row looked up once."""
 
-    def __init__(self, snap: Snapshot, rows: np.ndarray) -> None:
+    def __init__(self, snap: Snapshot, rows: np.ndarray, named: np.ndarray) -> None:
+        """``named``: every row that may be described (others are looked up on demand)."""
         self.snap, self.rows = snap, rows
         self._cache: dict[int, tuple[str, str]] = {}
+        self._look_up(np.unique(named[named >= 0]))
+
+    def _look_up(self, rows: np.ndarray) -> None:
+        if len(rows) == 0:
+            return
+        tidx, paint, clothes = actor_paints(self.snap, rows)
+        names = [_TYPE_NAMES[int(t)] for t in tidx]
+        wears = np.array([name in WEARS for name in names])
+        colours = colour_names(np.where(wears[:, None], clothes, paint))
+        self._cache.update(zip(rows.tolist(), zip(names, colours, strict=True), strict=True))
 
     def type_name(self, row: int) -> str:
         return self._type_colour(row)[0]
 
     def _type_colour(self, row: int) -> tuple[str, str]:
         if row not in self._cache:
-            tidx, paint, clothes = actor_paints(self.snap, np.array([row]))
-            name = _TYPE_NAMES[int(tidx[0])]
-            colour = colour_names(clothes if name in WEARS else paint)[0]
-            self._cache[row] = (name, colour)
+            self._look_up(np.array([row]))
         return self._cache[row]
 
     def thing(self, row: int) -> str:
