@@ -315,9 +315,20 @@ def test_detour_templates() -> None:
     assert lang.communication == ""  # no other CAV
 
 
+def test_an_obstacle_passed_is_no_longer_gone_around() -> None:
+    """The shift is held to ramp back after the parked car: with the car behind the CAV the route action
+    is the plain one again, and the car is not the critical object."""
+    sc = Scene(*ONE_WAY)
+    snap = sc.snapshot(0.0, [Actor(CAV_S - 6.0, -0.35 * sc.width)])
+    d = decision(snap, np.array([0]), lane_path(sc, CAV_S)[None], detour=([DetourReason.OBSTACLE], [1]))
+    lang = labels(snap, d, sc.map)[0]
+    assert lang.route_action == "follow" and lang.critical_row == -1
+
+
 # ------------------------------------------------------------------ (5) walkers
 @pytest.mark.parametrize(
-    ("ahead", "speed", "caution"), [(10.0, 1.4, True), (10.0, 0.3, False), (20.0, 1.4, False)]
+    ("ahead", "speed", "caution"),
+    [(10.0, 1.4, True), (10.0, 0.3, False), (20.0, 1.4, False), (-8.0, 1.4, False)],  # (behind: none)
 )
 def test_walker_caution(ahead: float, speed: float, caution: bool) -> None:
     sc = Scene(*TWO_WAY)

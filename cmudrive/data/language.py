@@ -152,13 +152,14 @@ def describe(inputs: LanguageInputs) -> list[Language]:
         return []
     speed = speed_actions(np.maximum(snap.speed[rows], 0.0), inputs.future_target_speed, d.target_speed)
     route = route_actions(inputs.road_map, d.path)
-    critical = critical_rows(snap, d, rows)
+    detour_row = current_detour_rows(snap, d, rows)
+    critical = critical_rows(snap, d, rows, detour_row)
     partner = partners(inputs.visibility, d.cav_index, critical, snap, rows, inputs.num_cavs)
     walker = nearest_walkers(snap, rows)
-    names = _Names(snap, rows, np.concatenate([d.object_row, d.detour_row, critical, walker]))
+    names = _Names(snap, rows, np.concatenate([d.object_row, detour_row, critical, walker]))
     out = []
     for a in range(n):
-        detour = _detour_action(names, a, int(d.detour_reason[a]), int(d.detour_row[a]))
+        detour = _detour_action(names, a, int(d.detour_reason[a]), int(detour_row[a]))
         route_code, route_text = detour if detour else (str(route[a]), ROUTE_TEXT[str(route[a])])
         reason_code, reason_text = _reason(names, d, a, str(speed[a]))
         post = ""
@@ -249,9 +250,28 @@ def route_actions(road_map: RoadMap, path: np.ndarray) -> np.ndarray:
 
 
 # ------------------------------------------------------------------ objects
-def critical_rows(snap: Snapshot, d: ExpertDecision, rows: np.ndarray) -> np.ndarray:
-    """(n,) snapshot row of each CAV's critical object (see the module docstring), -1 none."""
-    crit = np.where(d.object_row >= 0, d.object_row, d.detour_row).astype(np.int64)
+def current_detour_rows(snap: Snapshot, d: ExpertDecision, rows: np.ndarray) -> np.ndarray:
+    """(n,) ``decision.detour_row``, or -1 where the shift no longer goes around that actor: the CAV has
+    passed it (its centre behind the CAV's rear bumper) while the shift is held to ramp back, or, for an
+    invading vehicle, it does not come the other way (heading within 120 deg of the CAV's: crossing
+    traffic the planner took for an invader where the route turns). An emergency vehicle, behind by
+    nature, is kept."""
+    r = np.asarray(d.detour_row, np.int64)
+    rr = np.maximum(r, 0)
+    c, s = np.cos(snap.yaw[rows]), np.sin(snap.yaw[rows])
+    lon = (snap.x[rr] - snap.x[rows]) * c + (snap.y[rr] - snap.y[rows]) * s
+    passed = lon < -0.5 * snap.length[rows]
+    why = np.asarray(d.detour_reason)
+    relative = np.abs(np.angle(np.exp(1j * (snap.yaw[rr] - snap.yaw[rows]))))
+    not_oncoming = (why == DetourReason.INVADING) & (relative < np.radians(120.0))
+    keep = (r >= 0) & ((~passed & ~not_oncoming) | (why == DetourReason.EMERGENCY))
+    return np.where(keep, r, -1)
+
+
+def critical_rows(snap: Snapshot, d: ExpertDecision, rows: np.ndarray, detour_row: np.ndarray) -> np.ndarray:
+    """(n,) snapshot row of each CAV's critical object (see the module docstring), -1 none;
+    ``detour_row`` from :func:`current_detour_rows`."""
+    crit = np.where(d.object_row >= 0, d.object_row, detour_row).astype(np.int64)
     todo = np.flatnonzero(crit < 0)
     if len(todo) and len(d.path[0]) > 1:
         skip = np.zeros((len(todo), snap.num_actors), bool)
@@ -302,16 +322,19 @@ def partners(
 
 
 def nearest_walkers(snap: Snapshot, rows: np.ndarray) -> np.ndarray:
-    """(n,) row of the nearest walker within WALKER_REACH m of each CAV moving faster than WALKER_SPEED."""
+    """(n,) row of the nearest walker within WALKER_REACH m of each CAV, moving faster than WALKER_SPEED and
+    not behind it (bearing within DIRECTIONS_SIDE's 120 deg of the heading), -1 none."""
     walkers = np.flatnonzero(
         snap.valid & (snap.kind == ActorKind.PEDESTRIAN) & (np.abs(snap.speed) > WALKER_SPEED)
     )
     out = np.full(len(rows), -1, np.int64)
     if len(walkers) == 0:
         return out
-    dist = np.hypot(
-        snap.x[walkers][None, :] - snap.x[rows][:, None], snap.y[walkers][None, :] - snap.y[rows][:, None]
-    )
+    dx = snap.x[walkers][None, :] - snap.x[rows][:, None]  # (n, W)
+    dy = snap.y[walkers][None, :] - snap.y[rows][:, None]
+    c, s = np.cos(snap.yaw[rows])[:, None], np.sin(snap.yaw[rows])[:, None]
+    bearing = np.degrees(np.abs(np.arctan2(-dx * s + dy * c, dx * c + dy * s)))
+    dist = np.where(bearing <= DIRECTIONS_SIDE[0], np.hypot(dx, dy), np.inf)  # not behind the CAV
     best = np.argmin(dist, axis=1)
     near = dist[np.arange(len(rows)), best] <= WALKER_REACH
     out[near] = walkers[best[near]]
@@ -444,6 +467,7 @@ __all__ = [
     "Language",
     "LanguageInputs",
     "critical_rows",
+    "current_detour_rows",
     "describe",
     "partners",
     "route_actions",
