@@ -17,6 +17,7 @@ from cmudrive.data.labels import (
     to_ego,
     waypoint_labels,
 )
+from cmudrive.data.language import Language, LanguageInputs, describe
 from cmudrive.data.schema import COLUMNS, features, pack_occupancy, unpack_occupancy
 from cmudrive.data.shards import ShardWriter, load_shards, shard_complete, shard_path, shard_paths
 
@@ -30,11 +31,14 @@ __all__ = [
     "BenchmarkRouteError",
     "CollectSummary",
     "CollectingAgent",
+    "Language",
+    "LanguageInputs",
     "RouteInfo",
     "ShardJob",
     "ShardWriter",
     "check_not_benchmark",
     "collect",
+    "describe",
     "features",
     "load_shards",
     "next_target_points",

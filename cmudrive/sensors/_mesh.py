@@ -430,16 +430,26 @@ def id_hash(ids: np.ndarray) -> np.ndarray:
     return np.array([zlib.crc32(str(i).encode()) for i in ids], np.int64)
 
 
+def actor_paints(snap: Snapshot, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """How the camera paints the actors at ``rows``: (m,) ActorType index (``ACTOR_TYPES`` order, the type
+    of the actor's kind nearest in extent), (m, 3) float32 body paint and (m, 3) float32 clothes of
+    walkers and riders (RGB in [0, 1])."""
+    kind = snap.kind[rows].astype(np.int64)
+    _, tidx = actor_heights(kind, snap.length[rows], snap.width[rows])
+    seed = id_hash(snap.ids[rows])
+    paint = np.where(
+        _TYPE_FIXED_PAINT[tidx, None], _TYPE_PAINT[tidx], VEHICLE_PAINTS[seed % len(VEHICLE_PAINTS)]
+    )
+    return tidx, paint, CLOTHES[seed % len(CLOTHES)]
+
+
 def actor_triangles(snap: Snapshot, rows: np.ndarray) -> tuple[Triangles, np.ndarray]:
     """Triangles of the actors at ``rows`` and the CSR pointer (len(rows) + 1,) over them."""
     kind = snap.kind[rows].astype(np.int64)
     x, y, yaw = snap.x[rows], snap.y[rows], snap.yaw[rows]
     length, width = snap.length[rows], snap.width[rows]
     height, tidx = actor_heights(kind, length, width)
-    seed = id_hash(snap.ids[rows])
-    paint = np.where(
-        _TYPE_FIXED_PAINT[tidx, None], _TYPE_PAINT[tidx], VEHICLE_PAINTS[seed % len(VEHICLE_PAINTS)]
-    )
+    _, paint, clothes = actor_paints(snap, rows)
     columns: list[list[np.ndarray]] = [[] for _ in range(10)]  # owner, x, y, yaw, l, w, z0, z1, colour, flags
     n = len(rows)
 
@@ -494,11 +504,11 @@ def actor_triangles(snap: Snapshot, rows: np.ndarray) -> tuple[Triangles, np.nda
     # two-wheelers: frame and rider
     two = np.isin(kind, [ActorKind.BICYCLE, ActorKind.MOTORCYCLE])
     add(two, 0.0, length, np.minimum(width, 0.25), 0.0, 0.9, TYRES)
-    add(two, -0.1 * length, 0.45, np.minimum(width, 0.55), 0.9, height, CLOTHES[seed % len(CLOTHES)])
+    add(two, -0.1 * length, 0.45, np.minimum(width, 0.55), 0.9, height, clothes)
     # pedestrians: legs, torso, head
     ped = kind == ActorKind.PEDESTRIAN
     add(ped, 0.0, 0.6 * length, 0.6 * width, 0.0, 0.52 * height, TROUSERS)
-    add(ped, 0.0, 0.8 * length, width, 0.52 * height, 0.86 * height, CLOTHES[seed % len(CLOTHES)])
+    add(ped, 0.0, 0.8 * length, width, 0.52 * height, 0.86 * height, clothes)
     add(ped, 0.0, 0.45 * length, 0.4 * width, 0.86 * height, height, SKIN)
     # small props (cones, warning signs)
     add(small_prop, 0.0, length, width, 0.0, height, paint)

@@ -38,7 +38,7 @@ from cmudrive.agents.control import (
     nearest_ahead,
 )
 from cmudrive.agents.corridor import first_in_corridor
-from cmudrive.agents.expert.detour import DetourPlanner, DetourReason
+from cmudrive.agents.expert.detour import Detour, DetourPlanner, DetourReason
 from cmudrive.agents.expert.forecast import Forecaster
 from cmudrive.agents.expert.plan import EntryKind, RoutePlans, build_plans
 from cmudrive.agents.expert.rules import GAPS, IdmConfig, Reason, idm, reason_of_kind
@@ -96,6 +96,11 @@ class ExpertDecision:
     distance: np.ndarray  # (n,) [m] bumper to the object / stop line, inf none
     path: np.ndarray  # (n, PATH_OUT, 2) the planned path ahead, map frame [m], 1 m apart
     route_index: np.ndarray  # (n,) progress along the dense route
+    # (n,) int8 DetourReason of the path shift (or of the shift it waits to start), NONE when the path
+    # is not shifted; (n,) snapshot row of the actor it is shifted around or yields to (the nearest of
+    # them to the CAV), -1 none. The language labels name the obstacle from these.
+    detour_reason: np.ndarray
+    detour_row: np.ndarray
 
 
 class ExpertAgent(Agent):
@@ -241,7 +246,9 @@ class ExpertAgent(Agent):
         self.blocked_ticks[i[start]] = 0
 
         controls = self._controls(obs, pos, v, path, frac, accel)
-        self._record(snap, obs.tick, i, v, accel, reason, obj_row, obj_dist, path)
+        self._record(
+            snap, obs.tick, i, v, accel, reason, obj_row, obj_dist, path, _detour_record(snap, rows, det)
+        )
         return controls
 
     # ------------------------------------------------------------------ parts
@@ -456,6 +463,7 @@ class ExpertAgent(Agent):
         obj_row: np.ndarray,
         obj_dist: np.ndarray,
         path: np.ndarray,
+        detour: dict[str, np.ndarray],
     ) -> None:
         has = obj_row >= 0
         ids = np.full(len(i), "", dtype=object)
@@ -474,4 +482,21 @@ class ExpertAgent(Agent):
             distance=obj_dist,
             path=path[:, :PATH_OUT].copy(),
             route_index=self.progress[i].copy(),
+            **detour,
         )
+
+
+def _detour_record(snap: Snapshot, rows: np.ndarray, det: Detour) -> dict[str, np.ndarray]:
+    """The decision's ``detour_reason`` and ``detour_row``: set where the path is shifted (more than
+    0.1 m anywhere ahead) or the CAV waits to start a shift; the row is the actor of the shift nearest to
+    the CAV."""
+    n = len(rows)
+    active = (np.abs(det.offset).max(axis=1, initial=0.0) > 0.1) | det.waiting
+    reason = np.where(active, det.reason, DetourReason.NONE).astype(np.int8)
+    row = np.full(n, -1, np.int64)
+    for a in np.flatnonzero(active & (reason != DetourReason.BLOCKED)).tolist():
+        r = det.actors[a]
+        if len(r):
+            d2 = (snap.x[r] - snap.x[rows[a]]) ** 2 + (snap.y[r] - snap.y[rows[a]]) ** 2
+            row[a] = r[int(np.argmin(d2))]
+    return {"detour_reason": reason, "detour_row": row}
