@@ -25,6 +25,11 @@ routes_app = typer.Typer(
     help="Route files: generate multi-CAV routes, import Bench2Drive routes.", no_args_is_help=True
 )
 app.add_typer(routes_app, name="routes")
+data_app = typer.Typer(
+    help="The driving dataset: collect expert rollouts into shards, summarise them, draw samples.",
+    no_args_is_help=True,
+)
+app.add_typer(data_app, name="data")
 console = Console()
 err_console = Console(stderr=True)
 
@@ -482,6 +487,186 @@ def evaluate(
             _fail(exc)
     _print_results(merged)
     console.print(f"results: {out / 'results.json'}")
+
+
+@data_app.command("collect")
+def data_collect(
+    routes: Annotated[
+        str, typer.Option(help="route file (.xml) or a committed route set (training; never the benchmark's)")
+    ] = "training",
+    out: Annotated[Path, typer.Option(help="dataset folder: one <route>.parquet shard per route")] = Path(
+        "data/train"
+    ),
+    workers: Annotated[
+        int | None,
+        typer.Option(
+            min=1, help=f"routes run in parallel (local executor); default: CPUs, at most {MAX_WORKERS}"
+        ),
+    ] = None,
+    executor: Annotated[str, typer.Option(help="local or ray")] = "local",
+    ray_address: Annotated[str | None, typer.Option(help="address of an existing Ray cluster")] = None,
+    resume: Annotated[
+        bool, typer.Option(help="collect only the routes without a complete shard in OUT")
+    ] = False,
+    limit_routes: Annotated[
+        int | None, typer.Option(min=1, help="only the first K routes of the file")
+    ] = None,
+    tick_cap: Annotated[int, typer.Option(min=1, help="ticks per route at most (20 per second)")] = 4000,
+    step_timeout: Annotated[
+        float, typer.Option(help="seconds the expert and sensors may take per step; a hung worker is killed")
+    ] = 10.0,
+    allow_benchmark_routes: Annotated[
+        bool, typer.Option(help="collect on routes of cmudrive220/cmudrive44 too (never for training data)")
+    ] = False,
+    town_dir: Annotated[
+        list[Path] | None,
+        typer.Option(help="folder of <town>.net.xml networks, searched after the route file's own folder"),
+    ] = None,
+) -> None:
+    """Run the expert on the routes and save one sample per active CAV every 5th tick (docs/data.md)."""
+    from rich.markup import escape
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TaskID, TextColumn, TimeElapsedColumn
+
+    from cmudrive.bench.evaluator import EvalConfig
+    from cmudrive.bench.records import RouteResult
+    from cmudrive.bench.routes import read_routes
+    from cmudrive.bench.runner import LocalExecutor, RayExecutor
+    from cmudrive.data import collect, shard_path
+    from cmudrive.data.shards import shard_rows
+
+    path = _routes_path(routes)
+    try:
+        specs, invalid = read_routes(path, strict=False)
+    except (OSError, ValueError) as exc:
+        _fail(exc)
+    for route_id, message in invalid:
+        err_console.print(f"[yellow]skipping route {route_id}:[/] {message}")
+    specs = specs[:limit_routes] if limit_routes is not None else specs
+    if not specs:
+        _fail(ValueError(f"{path}: no route to collect on"))
+    extra_dirs = tuple(str(d.resolve()) for d in town_dir or ())
+    specs = [dataclasses.replace(s, town_dirs=s.town_dirs + extra_dirs) for s in specs]
+    try:
+        config = EvalConfig(tick_cap=tick_cap, step_timeout=step_timeout)
+    except ValueError as exc:
+        _fail(ValueError(f"--step-timeout / --tick-cap: {exc}"))
+    if executor == "ray":
+        runner: LocalExecutor | RayExecutor = RayExecutor(ray_address)
+    elif executor == "local":
+        runner = LocalExecutor(workers or default_workers())
+    else:
+        _fail(ValueError(f"--executor {executor!r}: use 'local' or 'ray'"))
+    samples = 0
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
+    with Progress(*columns, console=console) as progress:
+        overall = progress.add_task(f"{len(specs)} routes from {path.name}", total=len(specs))
+        ticks: dict[str, TaskID] = {}
+
+        def on_progress(route_id: str, tick: int) -> None:
+            if route_id not in ticks:
+                ticks[route_id] = progress.add_task(f"  route {route_id} [ticks]", total=tick_cap)
+            progress.update(ticks[route_id], completed=tick)
+
+        def on_result(result: RouteResult, written: bool) -> None:
+            nonlocal samples
+            progress.advance(overall)
+            if result.route_id in ticks:
+                progress.remove_task(ticks.pop(result.route_id))
+            if written:
+                rows = shard_rows(shard_path(out, result.route_id))
+                samples += rows
+                console.print(
+                    f"route {result.route_id}: {rows} samples, {result.ticks} ticks, {result.wall_time:.0f} s"
+                )
+            else:
+                last = (result.error or "").strip().splitlines()[-1:] or [result.status]
+                err_console.print(f"[red]route {result.route_id} failed, no shard:[/] {escape(last[0])}")
+
+        try:
+            summary = collect(
+                specs,
+                out,
+                runner,
+                config,
+                resume=resume,
+                allow_benchmark=allow_benchmark_routes,
+                on_result=on_result,
+                on_progress=on_progress,
+            )
+        except KeyboardInterrupt:
+            err_console.print(f"interrupted: finished shards are in {out}; continue with --resume")
+            raise typer.Exit(code=130) from None
+        except (ValueError, FileExistsError) as exc:
+            _fail(exc)
+    console.print(
+        f"{len(summary.written)} shards written ({samples} samples), {len(summary.skipped)} already there, "
+        f"{len(summary.failed)} routes failed; dataset: {out}"
+    )
+    if summary.failed:
+        raise typer.Exit(code=1)
+
+
+@data_app.command("stats")
+def data_stats(
+    folder: Annotated[Path, typer.Argument(help="dataset folder")],
+    as_json: Annotated[bool, typer.Option("--json", help="print the statistics as JSON")] = False,
+) -> None:
+    """Samples per scenario type, weather, CAV count and town; label histograms; waypoint ranges; size."""
+    import json
+
+    from rich.markup import escape
+
+    from cmudrive.data.stats import dataset_stats
+
+    try:
+        stats = dataset_stats(folder)
+    except (OSError, ValueError) as exc:
+        _fail(exc)
+    if as_json:
+        console.print_json(json.dumps(stats))
+        return
+    console.print(
+        f"{stats['samples']} samples from {stats['routes']} routes ({stats['shards']} shards), "
+        f"{stats['bytes'] / 2**20:.1f} MiB on disk, {stats['bytes_per_sample']:.0f} bytes per sample; "
+        f"communication sentence in {100 * stats['communication_share']:.1f} % of samples, "
+        f"a V2V partner in {100 * stats['partner_share']:.1f} %"
+    )
+    n = max(stats["samples"], 1)
+    for name, counts in stats["counts"].items():
+        table = Table(title=f"samples per {name}")
+        table.add_column(name)
+        table.add_column("samples", justify="right")
+        table.add_column("%", justify="right")
+        for key, value in counts.items():
+            table.add_row(escape(str(key)) if key != "" else "(none)", str(value), f"{100 * value / n:.1f}")
+        console.print(table)
+    table = Table(title="ranges")
+    for col in ("quantity", "min", "p5", "median", "p95", "max"):
+        table.add_column(col, justify="right" if col != "quantity" else "left")
+    for name, r in stats["ranges"].items():
+        if r:
+            table.add_row(escape(name), *(f"{r[k]:.2f}" for k in ("min", "p5", "median", "p95", "max")))
+    console.print(table)
+
+
+@data_app.command("show")
+def data_show(
+    folder: Annotated[Path, typer.Argument(help="dataset folder")],
+    output: Annotated[Path, typer.Option("-o", "--output", help="PNG to write")] = Path("grid.png"),
+    types: Annotated[
+        list[str] | None, typer.Option("--types", help="scenario types to show (repeat the option)")
+    ] = None,
+    count: Annotated[int, typer.Option(min=1, help="samples to draw")] = 8,
+    seed: Annotated[int, typer.Option(help="which samples (random draw)")] = 0,
+) -> None:
+    """A grid of samples: camera with the path, merged BEV with path and speed waypoints, sentences."""
+    from cmudrive.data.show import save_grid
+
+    try:
+        path = save_grid(folder, output, count=count, types=types, seed=seed)
+    except (OSError, ValueError) as exc:
+        _fail(exc)
+    console.print(f"wrote {path}")
 
 
 PER_ROUTE_TABLE_MAX = 12  # routes; larger runs print one row per scenario type

@@ -4,7 +4,7 @@ Routes run through the benchmark's own runner (``cmudrive.bench.runner``: a fres
 with the watchdog, or Ray tasks); in each worker a :class:`ShardJob` runs the ordinary route loop with a
 :class:`~cmudrive.data.collector.CollectingAgent` around the expert and renames the route's shard into place
 when the route has run to its end. A route that crashes (the simulation or the expert raised, the worker
-died) leaves no shard, only its record in ``DIR/_routes/`` with the error, and the other routes go on;
+died) leaves no shard, only its record in ``DIR/.routes/`` with the error, and the other routes go on;
 ``resume`` runs exactly the routes without a complete shard.
 
 Training data must not come from the benchmark: :func:`check_not_benchmark` refuses routes whose id or

@@ -316,6 +316,8 @@ class CollectingAgent(Agent):
             b["commentary"].append(lang.commentary)
             b["communication"].append(lang.communication)
             b["partner_label"].append(int(lang.partner_label))
+            b["route_action"].append(lang.route_action)
+            b["speed_action"].append(lang.speed_action)
         self.samples += n
         # a labelled tick's snapshot and visibility are no longer needed
         s.columns.clear()

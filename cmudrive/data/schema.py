@@ -48,7 +48,7 @@ LABELS = (
     "object_distance",
     "target_speed",
 )
-LANGUAGE = ("commentary", "communication", "partner_label")
+LANGUAGE = ("commentary", "communication", "partner_label", "route_action", "speed_action")
 COLUMNS = METADATA + INPUTS + LABELS + LANGUAGE
 
 
@@ -86,6 +86,8 @@ def features(occupancy: OccupancyConfig | None = None) -> datasets.Features:
         "commentary": text,
         "communication": text,
         "partner_label": i32,
+        "route_action": text,
+        "speed_action": text,
     }
     assert tuple(spec) == COLUMNS
     return datasets.Features(spec)

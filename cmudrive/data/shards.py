@@ -4,10 +4,11 @@ complete, so that a file named ``<stem>.parquet`` is always a whole route and ``
 Layout of a dataset folder::
 
     DIR/<stem>.parquet        the samples of one route (``stem``: ``records.record_stem(route_id)``)
-    DIR/_routes/<stem>.json   that route's evaluation record (status, scores, error); crashed routes too
+    DIR/.routes/<stem>.json   that route's evaluation record (status, scores, error); crashed routes too
     DIR/.<stem>.parquet.tmp   a shard being written (removed or renamed when its route ends)
 
-``datasets.load_dataset("parquet", data_dir=DIR)`` reads the shards and skips the ``_`` and ``.`` entries.
+``datasets.load_dataset("parquet", data_dir=DIR)`` and ``load_dataset(DIR)`` read the shards and skip the
+hidden ``.`` entries.
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ import pyarrow.parquet as pq
 from cmudrive.bench.records import record_stem
 
 SHARD_SUFFIX = ".parquet"
-RECORDS_DIR = "_routes"
+RECORDS_DIR = ".routes"  # hidden: datasets skips it (it does not skip "_" names)
 ROW_GROUP = 256  # [rows] per Parquet row group (a flush of the writer)
 COMPRESSION = "zstd"  # Parquet codec: the occupancy arrays are mostly zeros
 COMPRESSION_LEVEL = 3  # zstd level (measured: level 1 is no faster here and 6 % larger)
@@ -53,6 +54,10 @@ def shard_complete(path: Path) -> bool:
     except (OSError, pa.ArrowException):
         return False
     return True
+
+
+def shard_rows(path: Path) -> int:
+    return int(pq.read_metadata(path).num_rows)
 
 
 def shard_paths(out: Path) -> list[Path]:

@@ -1,0 +1,161 @@
+"""Collecting shards in closed loop on the mini network: labels of a straight drive, the shards load with
+``datasets``, resume, a bad route, and the benchmark-route guard."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from pathlib import Path
+
+import datasets
+import numpy as np
+import pytest
+
+from cmudrive.bench.evaluator import EvalConfig
+from cmudrive.bench.routes import CavSpec, RouteSpec, read_routes
+from cmudrive.bench.runner import ProgressCallback, RouteTask, run_task
+from cmudrive.data import (
+    COLUMNS,
+    BenchmarkRouteError,
+    check_not_benchmark,
+    collect,
+    features,
+    shard_path,
+    unpack_occupancy,
+)
+from cmudrive.data.collector import SAMPLE_EVERY
+from cmudrive.maps import RoadMap
+from cmudrive.maps.coords import map_to_carla
+from cmudrive.sim.background import BackgroundConfig
+
+EMPTY = EvalConfig(tick_cap=300, background=BackgroundConfig(vehicles=0, pedestrians=0))
+ROUTES = Path(__file__).resolve().parents[1] / "cmudrive" / "assets" / "routes"
+
+
+class InlineExecutor:
+    """Routes one after another in this process (the runner's tasks, without worker processes)."""
+
+    def run(self, tasks: list[RouteTask], on_progress: ProgressCallback | None = None) -> Iterator:
+        for task in tasks:
+            yield run_task(task)
+
+
+def lane_route(m: RoadMap, net: Path, route_id: str, lanes: list[tuple[str, float, float]]) -> RouteSpec:
+    """One CAV per (lane, start s, end s), driving along that lane."""
+    cavs = []
+    for k, (lane, s0, s1) in enumerate(lanes):
+        i = m.lane(lane)
+        xy = m.index.frenet_to_xy(np.full(4, i), np.linspace(s0, s1, 4))
+        cavs.append(CavSpec(k, np.column_stack([map_to_carla(xy), np.zeros(4)])))
+    return RouteSpec(route_id, str(net), "ClearNoon", 0, tuple(cavs))
+
+
+@pytest.fixture(scope="module")
+def straight(mini: RoadMap, mini_net: Path) -> RouteSpec:
+    """Two CAVs on the straight two-way road C-E (x = 212 .. 392, y = 0), one each way, no traffic."""
+    east = mini.lane("CE_1")
+    length = float(mini.lane_length[east])
+    west = "EC_1" if "EC_1" in list(mini.lane_ids) else "EC_0"
+    return lane_route(mini, mini_net, "straight", [("CE_1", 5.0, length - 5.0), (west, 5.0, length - 5.0)])
+
+
+@pytest.fixture(scope="module")
+def dataset_dir(straight: RouteSpec, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("data")
+    summary = collect([straight], out, InlineExecutor(), EMPTY)
+    assert summary.written == ["straight"], summary.failed
+    return out
+
+
+def test_shards_load_with_datasets_and_keep_the_schema(dataset_dir: Path) -> None:
+    ds = datasets.load_dataset("parquet", data_dir=str(dataset_dir), split="train")
+    assert ds.column_names == list(COLUMNS)
+    assert ds.features == features()  # image, array and list types come back as written
+    assert len(ds) > 50
+    row = ds[0]
+    assert row["camera"].size == (256, 128) and row["camera"].mode == "RGB"
+    assert row["merged_bev"].size == (128, 192) and row["merged_bev"].mode == "RGB"
+    assert np.asarray(row["occupancy"]).shape == (192, 128)
+    assert set(ds["cav"]) == {0, 1}
+    assert all(t % SAMPLE_EVERY == 0 for t in ds["tick"])
+    np_rows = ds.with_format("numpy")[:4]
+    assert np_rows["path"].shape == (4, 20, 2) and np_rows["path"].dtype == np.float32
+    # (the numpy formatter widens integers to int64; the column itself is uint8, see ds.features)
+    assert np_rows["merged_occupancy"].shape == (4, 192, 128) and np_rows["merged_occupancy"].max() < 16
+    assert os.path.isdir(dataset_dir / ".routes")  # the route records sit beside the shards, not in the data
+
+
+def test_straight_constant_speed_drive_has_straight_evenly_spaced_waypoints(dataset_dir: Path) -> None:
+    """On the straight road, samples where the CAV's speed stays within 0.1 m/s over the next 2.5 s: speed
+    waypoints 0.25 s x v apart within 0.25 s x 0.1 m/s (the speed change allowed) + 0.02 m (the speed is
+    the sample tick's, positions integrate the ticks between); every label point within 0.1 m of the lane
+    centre line through the ego (the lateral controller's wobble plus its lane offset)."""
+    ds = datasets.load_dataset("parquet", data_dir=str(dataset_dir), split="train").with_format("numpy")
+    cols = ds.select_columns(["cav", "tick", "speed", "path", "speed_waypoints"])[:]
+    cav, tick, speed = cols["cav"], cols["tick"], cols["speed"]
+    checked = 0
+    for i in range(len(ds)):
+        later = (cav == cav[i]) & (tick > tick[i]) & (tick <= tick[i] + 50)
+        if later.sum() < 10 or speed[i] < 2.0 or np.abs(speed[later] - speed[i]).max() > 0.1:
+            continue
+        path, wp = cols["path"][i], cols["speed_waypoints"][i]
+        np.testing.assert_allclose(np.diff(wp[:, 0], prepend=0.0), 0.25 * speed[i], atol=0.25 * 0.1 + 0.02)
+        np.testing.assert_allclose(np.hypot(*np.diff(path, axis=0).T), 1.0, atol=1e-3)
+        assert np.abs(path[:, 1]).max() < 0.1 and np.abs(wp[:, 1]).max() < 0.1
+        checked += 1
+    assert checked >= 10  # the drive has a constant-speed stretch to check
+
+
+def test_resume_collects_only_what_is_missing(mini: RoadMap, mini_net: Path, tmp_path: Path) -> None:
+    short = EvalConfig(tick_cap=40, background=BackgroundConfig(vehicles=0, pedestrians=0))
+    specs = [lane_route(mini, mini_net, f"r{k}", [("CE_1", 5.0 + 20 * k, 120.0 + 20 * k)]) for k in range(2)]
+    collect(specs, tmp_path, InlineExecutor(), short)
+    first, second = shard_path(tmp_path, "r0"), shard_path(tmp_path, "r1")
+    stamp = first.stat().st_mtime_ns
+    second.unlink()
+    with pytest.raises(FileExistsError, match="--resume"):
+        collect(specs, tmp_path, InlineExecutor(), short)
+    summary = collect(specs, tmp_path, InlineExecutor(), short, resume=True)
+    assert summary.skipped == ["r0"] and summary.written == ["r1"]
+    assert first.stat().st_mtime_ns == stamp and second.exists()
+    assert not list(tmp_path.glob(".*.tmp"))
+
+
+def test_a_bad_route_is_named_and_the_others_are_written(
+    mini: RoadMap, mini_net: Path, tmp_path: Path
+) -> None:
+    short = EvalConfig(tick_cap=20, background=BackgroundConfig(vehicles=0, pedestrians=0))
+    good = lane_route(mini, mini_net, "good", [("CE_1", 5.0, 120.0)])
+    bad = RouteSpec("bad_town_route", "no_such_town", "ClearNoon", 0, good.cavs)
+    summary = collect([bad, good], tmp_path, InlineExecutor(), short)
+    assert summary.written == ["good"]
+    assert "bad_town_route" in summary.failed and "bad_town_route" in summary.failed["bad_town_route"]
+    assert shard_path(tmp_path, "good").exists() and not shard_path(tmp_path, "bad_town_route").exists()
+    assert (tmp_path / ".routes" / "bad_town_route.json").exists()
+    ds = datasets.load_dataset("parquet", data_dir=str(tmp_path), split="train")
+    assert set(ds["route_id"]) == {"good"}
+
+
+def test_occupancy_columns_unpack_to_the_sensor_layout(dataset_dir: Path) -> None:
+    ds = datasets.load_dataset("parquet", data_dir=str(dataset_dir), split="train").with_format("numpy")
+    cols = ds.select_columns(["cav", "occupancy", "merged_occupancy", "partner"])[:]
+    own, merged = cols["occupancy"], cols["merged_occupancy"]
+    grids = unpack_occupancy(own)
+    assert grids.shape == (len(ds), 4, 192, 128)
+    assert np.all(merged | own == merged)  # the merged map holds everything the ego's own map holds
+    partner = cols["partner"]
+    assert np.all(partner != cols["cav"])
+    # the two CAVs drive towards each other: while within 70 m they see each other, so each has a partner
+    assert (partner >= 0).any()
+
+
+def test_benchmark_routes_are_refused_and_training_routes_pass() -> None:
+    bench = read_routes(ROUTES / "cmudrive44.xml")
+    with pytest.raises(BenchmarkRouteError, match=bench[3].id):
+        check_not_benchmark(bench[3:5])
+    check_not_benchmark(read_routes(ROUTES / "training.xml"))
+    renamed = [RouteSpec("my_copy", s.town, s.weather, s.seed, s.cavs, s.scenarios) for s in bench[:1]]
+    with pytest.raises(BenchmarkRouteError, match="benchmark place"):  # same place under another name
+        check_not_benchmark(renamed)
+    with pytest.raises(BenchmarkRouteError):
+        collect(bench[:1], Path("/nonexistent"), InlineExecutor())
