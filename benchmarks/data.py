@@ -9,12 +9,18 @@ time from the first worker's start to the last shard's rename: route set-up (map
 meshes) and writing are inside it. Also prints bytes per sample on disk. The last line is
 ``samples_per_s=<value>``.
 
+The machine is often shared: the script also prints the CPU seconds the workers used (their user + system
+time, from ``getrusage(RUSAGE_CHILDREN)``) and what that gives per CPU second, times the worker count (the
+throughput of the same work on idle cores), and the load average before and after.
+
 The script imports cmudrive from the checkout it lives in (not whichever copy is installed).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import resource
 import shutil
 import sys
 import tempfile
@@ -59,6 +65,8 @@ def main() -> None:
             f"{result.wall_time:.1f} s, {state}"
         )
 
+    load0 = os.getloadavg()
+    cpu0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     try:
         summary = collect(
@@ -70,6 +78,8 @@ def main() -> None:
             on_result=on_result,
         )
         wall = time.perf_counter() - t0
+        cpu1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        cpu = (cpu1.ru_utime - cpu0.ru_utime) + (cpu1.ru_stime - cpu0.ru_stime)
         files = shard_paths(out)
         samples = sum(pq.read_metadata(f).num_rows for f in files)
         size = sum(f.stat().st_size for f in files)
@@ -81,6 +91,11 @@ def main() -> None:
     print(
         f"{samples} samples in {wall:.1f} s; {size / 2**20:.1f} MiB, "
         f"{size / max(samples, 1):.0f} bytes/sample"
+    )
+    print(
+        f"workers' CPU time {cpu:.1f} s: {samples / max(cpu, 1e-9):.1f} samples per CPU second, "
+        f"x {args.workers} workers = {args.workers * samples / max(cpu, 1e-9):.1f} samples/s on idle cores; "
+        f"load average {load0[0]:.1f} before, {os.getloadavg()[0]:.1f} after (1 min)"
     )
     print(f"samples_per_s={samples / wall:.1f}")
 

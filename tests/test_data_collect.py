@@ -83,6 +83,8 @@ def test_shards_load_with_datasets_and_keep_the_schema(dataset_dir: Path) -> Non
     # (the numpy formatter widens integers to int64; the column itself is uint8, see ds.features)
     assert np_rows["merged_occupancy"].shape == (4, 192, 128) and np_rows["merged_occupancy"].max() < 16
     assert os.path.isdir(dataset_dir / ".routes")  # the route records sit beside the shards, not in the data
+    same = datasets.load_dataset(str(dataset_dir), split="train")  # the folder alone: parquet inferred
+    assert same.features == ds.features and len(same) == len(ds)
 
 
 def test_straight_constant_speed_drive_has_straight_evenly_spaced_waypoints(dataset_dir: Path) -> None:

@@ -106,9 +106,10 @@ def rows(n: int) -> dict[str, list]:
 def test_table_builder_matches_datasets_from_dict() -> None:
     f = features()
     data = rows(3)
-    ours = to_table(data, f)
+    ours = to_table(data, f.arrow_schema)
     theirs = datasets.Dataset.from_dict(data, features=f).data.table
-    assert ours.schema.equals(theirs.schema)
+    assert ours.schema.equals(theirs.schema, check_metadata=True)
+    assert datasets.Features.from_arrow_schema(ours.schema) == f  # the metadata gives the features back
     assert ours.column_names == list(COLUMNS)
     for name in COLUMNS:  # (to_pylist: NaN == NaN in Python's list equality of the same object is not
         a, b = ours.column(name).to_pylist(), theirs.column(name).to_pylist()  # guaranteed: compare as text)
@@ -118,7 +119,8 @@ def test_table_builder_matches_datasets_from_dict() -> None:
 def test_features_cover_the_columns_with_their_shapes() -> None:
     f = features(OccupancyConfig(ahead=32.0, behind=16.0, side=16.0))
     assert list(f) == list(COLUMNS)
-    assert f["occupancy"].shape == (96, 64) and f["occupancy"].dtype == "uint8"
-    assert f["path"].shape == (20, 2) and f["speed_waypoints"].shape == (10, 2)
+    assert f.arrow_schema.field("occupancy").type == pa.list_(pa.list_(pa.uint8(), 64), 96)
+    assert f.arrow_schema.field("path").type == pa.list_(pa.list_(pa.float32(), 2), 20)
+    assert f.arrow_schema.field("speed_waypoints").type == pa.list_(pa.list_(pa.float32(), 2), 10)
     assert isinstance(f["camera"], datasets.Image) and f["merged_bev"].mode == "RGB"
     assert f.arrow_schema.field("other_cavs").type == pa.list_(pa.list_(pa.float32(), 4))

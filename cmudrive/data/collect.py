@@ -18,6 +18,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import pyarrow as pa
+
 from cmudrive.agents.base import Agent
 from cmudrive.agents.expert import ExpertAgent
 from cmudrive.bench.evaluator import EvalConfig, RouteHooks, evaluate_route
@@ -44,6 +46,7 @@ class ShardJob:
     """Runs one route with the collecting agent in a worker and writes its shard (a ``RouteJob``)."""
 
     out: str
+    schema: pa.Schema  # features(sensors.occupancy).arrow_schema, built where datasets is imported
     sample_every: int = SAMPLE_EVERY
     sensors: SensorConfig = field(default_factory=SensorConfig)
 
@@ -61,7 +64,7 @@ class ShardJob:
             town=spec.town,
             num_cavs=len(spec.cavs),
         )
-        writer = ShardWriter(Path(self.out), spec.id, features(self.sensors.occupancy))
+        writer = ShardWriter(Path(self.out), spec.id, self.schema)
         made: list[CollectingAgent] = []
 
         def make() -> CollectingAgent:
@@ -153,7 +156,8 @@ def collect(
         )
     out.mkdir(parents=True, exist_ok=True)
     config = config or EvalConfig()
-    job = ShardJob(str(out.resolve()), sample_every, config.sensors)
+    schema = features(config.sensors.occupancy).arrow_schema
+    job = ShardJob(str(out.resolve()), schema, sample_every, config.sensors)
     tasks = [RouteTask(s, EXPERT, config, job=job) for s in routes if s.id not in done]
     summary = CollectSummary(skipped=[i for i in ids if i in done])
     for result in executor.run(tasks, on_progress):

@@ -7,19 +7,27 @@ behind the choice), the merged BEV as PNG (flat colours, lossless and small). Oc
 uint8 arrays with one bit per class (bit k = :class:`~cmudrive.sensors.OccupancyClass` k: 1 vehicle,
 2 pedestrian, 4 cyclist, 8 static), so overlapping classes survive; :func:`unpack_occupancy` turns them
 back into the sensors' ``(4, H, W)`` bool layout.
+
+Fixed-shape arrays (grids, waypoints) are nested fixed-size lists (``datasets.List(..., length=...)``):
+plain Arrow types, so the features' Arrow schema (with the ``huggingface`` metadata that gives
+``load_dataset`` the features back) pickles to a worker that writes shards without importing ``datasets``
+(a ~1 s import per route's fresh process); ``with_format("numpy")`` returns them as ``(n, H, W)`` arrays.
 """
 
 from __future__ import annotations
 
 import io
+from typing import TYPE_CHECKING
 
-import datasets
 import numpy as np
 from PIL import Image
 
 from cmudrive.data.labels import PATH_POINTS, SPEED_POINTS
 from cmudrive.sensors import NUM_CLASSES, OccupancyClass, OccupancyConfig
 from cmudrive.sensors.occupancy import BACKGROUND_COLOUR, CLASS_COLOURS, EGO_COLOUR
+
+if TYPE_CHECKING:
+    import datasets
 
 CAMERA_FORMAT = "JPEG"
 JPEG_QUALITY = 90  # [-] PIL's scale; see docs/data.md for the size / speed / error trade-off
@@ -54,8 +62,14 @@ COLUMNS = METADATA + INPUTS + LABELS + LANGUAGE
 
 def features(occupancy: OccupancyConfig | None = None) -> datasets.Features:
     """The ``datasets.Features`` of a shard, for the occupancy grid size of ``occupancy``."""
+    import datasets
+
     h, w = (occupancy or OccupancyConfig()).shape
     f32, i32, text = datasets.Value("float32"), datasets.Value("int32"), datasets.Value("string")
+
+    def array(rows: int, cols: int, dtype: str) -> datasets.List:
+        return datasets.List(datasets.List(datasets.Value(dtype), length=cols), length=rows)
+
     spec = {
         "route_id": text,
         "scenario_type": text,
@@ -66,15 +80,15 @@ def features(occupancy: OccupancyConfig | None = None) -> datasets.Features:
         "tick": i32,
         "time": f32,
         "camera": datasets.Image(),
-        "occupancy": datasets.Array2D((h, w), "uint8"),
-        "merged_occupancy": datasets.Array2D((h, w), "uint8"),
+        "occupancy": array(h, w, "uint8"),
+        "merged_occupancy": array(h, w, "uint8"),
         "merged_bev": datasets.Image(mode="RGB"),  # stored as a palette PNG, decoded to RGB
         "partner": i32,
         "speed": f32,
-        "target_points": datasets.Array2D((2, 2), "float32"),
+        "target_points": array(2, 2, "float32"),
         "other_cavs": datasets.List(datasets.List(f32, length=4)),
-        "path": datasets.Array2D((PATH_POINTS, 2), "float32"),
-        "speed_waypoints": datasets.Array2D((SPEED_POINTS, 2), "float32"),
+        "path": array(PATH_POINTS, 2, "float32"),
+        "speed_waypoints": array(SPEED_POINTS, 2, "float32"),
         "throttle": f32,
         "steer": f32,
         "brake": f32,

@@ -16,14 +16,16 @@ from __future__ import annotations
 import os
 from collections.abc import Iterable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import datasets
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
 from cmudrive.bench.records import record_stem
+
+if TYPE_CHECKING:
+    import datasets
 
 SHARD_SUFFIX = ".parquet"
 RECORDS_DIR = ".routes"  # hidden: datasets skips it (it does not skip "_" names)
@@ -68,11 +70,11 @@ class ShardWriter:
     """Writes one route's rows to ``DIR/.<stem>.parquet.tmp`` in row groups as they come, and renames the
     file to ``DIR/<stem>.parquet`` in :meth:`close`; :meth:`abort` removes it."""
 
-    def __init__(self, out: Path, route_id: str, features: datasets.Features) -> None:
+    def __init__(self, out: Path, route_id: str, schema: pa.Schema) -> None:
+        """``schema``: the Arrow schema of :func:`cmudrive.data.schema.features`."""
         self.path = shard_path(out, route_id)
         self.tmp = self.path.with_name(f".{self.path.name}.tmp")
-        self.features = features
-        self.schema = features.arrow_schema
+        self.schema = schema
         self._writer: pq.ParquetWriter | None = None
         self.rows = 0
 
@@ -80,7 +82,7 @@ class ShardWriter:
         """Append a batch: a list per column (images as ``{"bytes", "path"}`` dicts, arrays as numpy)."""
         if not rows or not next(iter(rows.values())):
             return
-        table = to_table(rows, self.features)
+        table = to_table(rows, self.schema)
         self._open().write_table(table, row_group_size=ROW_GROUP)
         self.rows += table.num_rows
 
@@ -110,38 +112,34 @@ class ShardWriter:
         self.tmp.unlink(missing_ok=True)
 
 
-def to_table(rows: dict[str, list[Any]], features: datasets.Features) -> pa.Table:
-    """Rows as lists per column -> the Arrow table ``datasets.Dataset.from_dict(rows, features)`` would
-    hold, built column by column from numpy (several times faster; a test checks they are equal)."""
-    schema = features.arrow_schema
+def to_table(rows: dict[str, list[Any]], schema: pa.Schema) -> pa.Table:
+    """Rows as lists per column -> an Arrow table of ``schema`` (``features().arrow_schema``), built column by
+    column from numpy: images are ``{"bytes", "path"}`` dicts, fixed-size list-of-list columns take (h, w)
+    arrays; the rest goes through ``pa.array``. Holds what ``datasets.Dataset.from_dict`` would, several
+    times faster (a test checks that)."""
     arrays = []
-    for name, feature in features.items():
-        values = rows[name]
-        arrow_type = schema.field(name).type
-        if isinstance(feature, datasets.Image):
+    for f in schema:
+        values = rows[f.name]
+        t = f.type
+        if pa.types.is_struct(t) and [t.field(i).name for i in range(t.num_fields)] == ["bytes", "path"]:
             data = pa.array([v["bytes"] for v in values], pa.binary())
-            arrays.append(
-                pa.StructArray.from_arrays(
-                    [data, pa.nulls(len(values), pa.string())], names=["bytes", "path"]
-                )
-            )
-        elif isinstance(feature, datasets.Array2D):
-            h, w = feature.shape
-            grid = np.asarray(values, dtype=feature.dtype).reshape(len(values) * h * w)
-            inner = pa.ListArray.from_arrays(
-                pa.array(np.arange(0, len(values) * h * w + 1, w, dtype=np.int32)), pa.array(grid)
-            )
-            outer = pa.ListArray.from_arrays(
-                pa.array(np.arange(0, len(values) * h + 1, h, dtype=np.int32)), inner
-            )
-            arrays.append(pa.ExtensionArray.from_storage(arrow_type, outer))
+            nulls = pa.nulls(len(values), pa.string())
+            arrays.append(pa.StructArray.from_arrays([data, nulls], fields=list(t)))
+        elif pa.types.is_fixed_size_list(t) and pa.types.is_fixed_size_list(t.value_type):
+            h, w = t.list_size, t.value_type.list_size
+            dtype = t.value_type.value_type.to_pandas_dtype()
+            grid = np.asarray(values, dtype=dtype).reshape(-1) if values else np.zeros(0, dtype)
+            inner = pa.FixedSizeListArray.from_arrays(pa.array(grid), w)
+            arrays.append(pa.FixedSizeListArray.from_arrays(inner, h))
         else:
-            arrays.append(pa.array(values, arrow_type))
+            arrays.append(pa.array(values, t))
     return pa.Table.from_arrays(arrays, schema=schema)
 
 
 def load_shards(out: Path | str, columns: Iterable[str] | None = None) -> datasets.Dataset:
     """All shards of a folder as one ``datasets.Dataset`` (the ``train`` split of the parquet loader)."""
+    import datasets
+
     files = [str(p) for p in shard_paths(Path(out))]
     if not files:
         raise FileNotFoundError(f"{out}: no *{SHARD_SUFFIX} shard")
