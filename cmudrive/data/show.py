@@ -2,8 +2,9 @@
 path label projected onto the road, the merged BEV it sees with the path (line) and speed waypoints (dots),
 and its metadata and sentences.
 
-Samples are chosen at random (seeded) among the shards' rows, one per scenario type of ``types`` when given,
-preferring samples where the CAV is moving or the expert names a reason, so the grid shows labels at work.
+Samples are chosen at random (seeded) among the shards' rows, ``count / len(types)`` per scenario type of
+``types`` when given, preferring samples where the CAV is moving or the expert names a reason (4x), and
+above all samples with a communication sentence (17x, they are rare), so the grid shows labels at work.
 """
 
 from __future__ import annotations
@@ -158,10 +159,10 @@ def save_grid(
         lines = [
             f"{s['route_id']}  CAV {s['cav']}/{s['num_cavs']}  tick {s['tick']}",
             f"{s['town']}, {s['weather']}; {s['speed']:.1f} m/s, {s['reason']}{partner}",
-            *textwrap.wrap(s["commentary"], 78),
+            *textwrap.wrap(s["commentary"], 66),
         ]
         if s["communication"]:
-            lines += textwrap.wrap("Comm: " + s["communication"], 78)
+            lines += textwrap.wrap("Comm: " + s["communication"], 66)
         ax_txt.text(0.0, 1.0, "\n".join(lines), va="top", ha="left", fontsize=6.5, family="monospace")
         for ax in (ax_cam, ax_bev, ax_txt):
             ax.set_xticks([])
