@@ -161,3 +161,25 @@ def test_benchmark_routes_are_refused_and_training_routes_pass() -> None:
         check_not_benchmark(renamed)
     with pytest.raises(BenchmarkRouteError):
         collect(bench[:1], Path("/nonexistent"), InlineExecutor())
+
+
+def test_worker_processes_and_ray_write_the_same_shard(tmp_path: Path) -> None:
+    """The real executors: the job pickles to a spawned worker and to a Ray task, and a route's samples do
+    not depend on which one ran it (routes are deterministic by seed)."""
+    ray = pytest.importorskip("ray", reason="Ray is an optional extra: pip install 'cmudrive[ray]'")
+    from cmudrive.bench.runner import LocalExecutor, RayExecutor
+
+    from .test_evaluator import ring_route
+
+    short = EvalConfig(tick_cap=60, background=BackgroundConfig(vehicles=0, pedestrians=0))
+    route = [ring_route("ring", seed=2)]
+    collect(route, tmp_path / "local", LocalExecutor(1), short)
+    try:
+        collect(route, tmp_path / "ray", RayExecutor(), short)
+    finally:
+        ray.shutdown()
+    a = datasets.load_dataset("parquet", data_dir=str(tmp_path / "local"), split="train")
+    b = datasets.load_dataset("parquet", data_dir=str(tmp_path / "ray"), split="train")
+    assert len(a) == len(b) == 2 * (60 // SAMPLE_EVERY)
+    names = ["cav", "tick", "speed", "path", "speed_waypoints", "commentary", "partner"]
+    assert a.select_columns(names).to_dict() == b.select_columns(names).to_dict()
