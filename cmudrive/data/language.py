@@ -10,8 +10,9 @@ For every active CAV at a sample tick, from the expert's decision and the privil
 
 The critical object is, in this order: the object behind the expert's speed reason
 (``decision.object_row``: the corridor leader, the walker, the obstacle or the predicted collision); the
-actor the expert's path is shifted around or yields to (``decision.detour_row``); else the first actor in
-the planned path's corridor (the 40 m kept in the decision, half the CAV's width + ``CORRIDOR_MARGIN``).
+actor the expert's path is shifted around or yields to (``decision.detour_row``, while the CAV has not
+passed it: :func:`current_detour_rows`); else the first actor in the planned path's corridor (the 40 m kept
+in the decision, half the CAV's width + ``CORRIDOR_MARGIN``).
 
 Objects are named by kind, colour and rough direction in the CAV's frame. The snapshot carries no actor
 type, so the type is the one of the actor's kind nearest in extent, and the colour is the paint the camera
@@ -19,8 +20,9 @@ gives it (``cmudrive.sensors._mesh.actor_paints``: a per-id car paint, the cloth
 fixed colours of ambulances, police cars, cones and signs) -- the colour the model sees in its image, which
 the actor types' ``colour`` (used by SUMO's GUI only) is not.
 
-Vectorised over CAVs where it is cheap (speed bands, path projection, directions, visibility); the
-strings are put together per CAV.
+Vectorised over CAVs where it is cheap (speed bands, the path's lane matching, critical objects,
+partners, walkers, object types and colours); the strings are put together per CAV. About 0.1 ms per CAV
+with 16 CAVs, 0.3-0.6 ms with one or two (a fixed ~0.5 ms of small numpy calls).
 """
 
 from __future__ import annotations
