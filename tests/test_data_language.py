@@ -239,16 +239,22 @@ def turning_route(m: RoadMap, turn: TurnDir):  # type: ignore[no-untyped-def]
     return route, float(route.distance[on[-1]] + length - route.s[on[-1]])
 
 
-@pytest.mark.parametrize(("turn", "code"), [(TurnDir.LEFT, "turn_left"), (TurnDir.RIGHT, "turn_right")])
+@pytest.mark.parametrize(
+    ("turn", "code"),
+    [(TurnDir.LEFT, "turn_left"), (TurnDir.RIGHT, "turn_right"), (TurnDir.STRAIGHT, "follow")],
+)
 def test_turn_is_said_within_20m_of_the_junction_only(downtown: RoadMap, turn: TurnDir, code: str) -> None:
+    """Within 20 m of the junction (and inside it, 5 m past its entry) the turn is said; 24 m and more
+    before it the route is followed; straight across is followed."""
     route, entry = turning_route(downtown, turn)
 
     def path_from(gap: float) -> np.ndarray:
         k = int(np.searchsorted(route.distance, entry - gap))
         return route.xy[k : k + 40]
 
-    near, far = np.stack([path_from(15.0), path_from(18.0)]), np.stack([path_from(24.0), path_from(35.0)])
-    assert route_actions(downtown, near).tolist() == [code, code]
+    near = np.stack([path_from(15.0), path_from(18.0), path_from(-5.0)])
+    far = np.stack([path_from(24.0), path_from(35.0)])
+    assert route_actions(downtown, near).tolist() == [code, code, code]
     assert route_actions(downtown, far).tolist() == ["follow", "follow"]
 
 
