@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import time
 import zlib
+from collections.abc import Sequence
 
 import numpy as np
 import pytest
@@ -14,7 +15,7 @@ from cmudrive.agents.expert import ExpertDecision, Reason
 from cmudrive.agents.expert.detour import DetourReason
 from cmudrive.data import Language, LanguageInputs, describe
 from cmudrive.data.language import colour_names, direction, route_actions, speed_actions
-from cmudrive.maps import RoadMap, densify, load_map
+from cmudrive.maps import RoadMap, Route, densify, load_map
 from cmudrive.maps.model import StopKind, TurnDir
 from cmudrive.sensors._mesh import VEHICLE_PAINTS
 from cmudrive.sensors.visibility import Visibility, compute_visibility
@@ -34,11 +35,11 @@ def decision(
     snap: Snapshot,
     cav_rows: np.ndarray,
     paths: np.ndarray,
-    reason: list[int] | None = None,
-    object_row: list[int] | None = None,
-    distance: list[float] | None = None,
-    target_speed: list[float] | None = None,
-    detour: tuple[list[int], list[int]] | None = None,
+    reason: Sequence[int] | None = None,
+    object_row: Sequence[int] | None = None,
+    distance: Sequence[float] | None = None,
+    target_speed: Sequence[float] | None = None,
+    detour: tuple[Sequence[int], Sequence[int]] | None = None,
 ) -> ExpertDecision:
     """A hand-made decision for the CAVs at ``cav_rows`` (CAV index = position) with planned ``paths``."""
     n = len(cav_rows)
@@ -222,7 +223,7 @@ def test_speed_action_bands(speed: float, future: list[float], expected: str) ->
 
 
 # ------------------------------------------------------------------ (4) route actions
-def turning_route(m: RoadMap, turn: TurnDir):  # type: ignore[no-untyped-def]
+def turning_route(m: RoadMap, turn: TurnDir) -> tuple[Route, float]:
     """A dense route through the first signalised link of direction ``turn``; the route distance of the
     junction entry."""
     links = np.flatnonzero((m.link_dir == turn) & (m.link_tls >= 0) & (m.link_via >= 0))
@@ -239,16 +240,22 @@ def turning_route(m: RoadMap, turn: TurnDir):  # type: ignore[no-untyped-def]
     return route, float(route.distance[on[-1]] + length - route.s[on[-1]])
 
 
-@pytest.mark.parametrize(("turn", "code"), [(TurnDir.LEFT, "turn_left"), (TurnDir.RIGHT, "turn_right")])
+@pytest.mark.parametrize(
+    ("turn", "code"),
+    [(TurnDir.LEFT, "turn_left"), (TurnDir.RIGHT, "turn_right"), (TurnDir.STRAIGHT, "follow")],
+)
 def test_turn_is_said_within_20m_of_the_junction_only(downtown: RoadMap, turn: TurnDir, code: str) -> None:
+    """Within 20 m of the junction (and inside it, 5 m past its entry) the turn is said; 24 m and more
+    before it the route is followed; straight across is followed."""
     route, entry = turning_route(downtown, turn)
 
     def path_from(gap: float) -> np.ndarray:
         k = int(np.searchsorted(route.distance, entry - gap))
         return route.xy[k : k + 40]
 
-    near, far = np.stack([path_from(15.0), path_from(18.0)]), np.stack([path_from(24.0), path_from(35.0)])
-    assert route_actions(downtown, near).tolist() == [code, code]
+    near = np.stack([path_from(15.0), path_from(18.0), path_from(-5.0)])
+    far = np.stack([path_from(24.0), path_from(35.0)])
+    assert route_actions(downtown, near).tolist() == [code, code, code]
     assert route_actions(downtown, far).tolist() == ["follow", "follow"]
 
 
@@ -262,14 +269,13 @@ def test_lane_change_is_said() -> None:
     assert route_actions(sc.map, np.stack([path, straight])).tolist() == ["lane_left", "follow"]
 
 
-def test_the_expert_names_what_it_goes_around() -> None:
-    """ParkedObstacle 30 m ahead on the one-way road: the expert's decision records the shift and the car;
-    the commentary says to go around the parked car ahead on the right."""
-    sc = Scene(*ONE_WAY)
-    car = Actor(CAV_S + 30.0, -0.35 * sc.width, name=id_with_paint(4, "car"))  # a red car
+def expert_decision(
+    sc: Scene, actors: list[Actor], times: tuple[float, ...], cav_s: float = CAV_S
+) -> tuple[ExpertDecision | None, Snapshot]:
+    """The expert's decision for the scene's CAV after one tick at each time, and the last snapshot."""
     agent = expert_for(sc.map, [sc.route])
-    for tick, t in enumerate((0.0, 1.5)):
-        snap = sc.snapshot(t, [car])
+    for tick, t in enumerate(times):
+        snap = sc.snapshot(t, actors, cav_s)
         obs = Observations(
             tick=tick,
             time=t,
@@ -282,11 +288,30 @@ def test_the_expert_names_what_it_goes_around() -> None:
             snapshot=snap,
         )
         agent.run_step(obs)
-    d = agent.decision
+    return agent.decision, snap
+
+
+def test_the_expert_names_what_it_goes_around() -> None:
+    """ParkedObstacle 30 m ahead on the one-way road: the expert's decision records the shift and the car;
+    the commentary says to go around the parked car ahead."""
+    sc = Scene(*ONE_WAY)
+    car = Actor(CAV_S + 30.0, -0.35 * sc.width, name=id_with_paint(4, "car"))  # a red car
+    d, snap = expert_decision(sc, [car], (0.0, 1.5))
     assert d is not None and d.detour_reason[0] == DetourReason.OBSTACLE and d.detour_row[0] == 1
     lang = labels(snap, d, sc.map)[0]
     assert lang.route_action == "detour_parked"
     assert lang.commentary.startswith("Go around the red car parked ahead.")
+
+
+def test_the_expert_names_the_emergency_vehicle_it_makes_way_for() -> None:
+    """A siren 30 m behind in the CAV's lane: the expert's decision records the shift and the ambulance."""
+    sc = Scene(*ONE_WAY)
+    ev = Actor(CAV_S, 0.0, 25.0, ActorKind.EMERGENCY, length=6.2, width=2.3, siren=True)
+    d, snap = expert_decision(sc, [ev], (0.0,), cav_s=CAV_S + 30.0)
+    assert d is not None and d.detour_reason[0] == DetourReason.EMERGENCY and d.detour_row[0] == 1
+    lang = labels(snap, d, sc.map)[0]
+    assert lang.route_action == "detour_emergency" and lang.critical_row == 1
+    assert lang.commentary.startswith("Make way for the white ambulance behind.")
 
 
 def test_detour_templates() -> None:
