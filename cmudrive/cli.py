@@ -654,7 +654,8 @@ def data_show(
     folder: Annotated[Path, typer.Argument(help="dataset folder")],
     output: Annotated[Path, typer.Option("-o", "--output", help="PNG to write")] = Path("grid.png"),
     types: Annotated[
-        list[str] | None, typer.Option("--types", help="scenario types to show (repeat the option)")
+        list[str] | None,
+        typer.Option("--types", help="scenario types to show (comma-separated, or repeat the option)"),
     ] = None,
     count: Annotated[int, typer.Option(min=1, help="samples to draw")] = 8,
     seed: Annotated[int, typer.Option(help="which samples (random draw)")] = 0,
@@ -663,7 +664,8 @@ def data_show(
     from cmudrive.data.show import save_grid
 
     try:
-        path = save_grid(folder, output, count=count, types=types, seed=seed)
+        names = [t for arg in types or () for t in arg.split(",") if t]
+        path = save_grid(folder, output, count=count, types=names or None, seed=seed)
     except (OSError, ValueError) as exc:
         _fail(exc)
     console.print(f"wrote {path}")

@@ -183,3 +183,28 @@ def test_worker_processes_and_ray_write_the_same_shard(tmp_path: Path) -> None:
     assert len(a) == len(b) == 2 * (60 // SAMPLE_EVERY)
     names = ["cav", "tick", "speed", "path", "speed_waypoints", "commentary", "partner"]
     assert a.select_columns(names).to_dict() == b.select_columns(names).to_dict()
+
+
+def test_stats_and_show_commands(dataset_dir: Path, tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from cmudrive.cli import app
+    from cmudrive.data.stats import dataset_stats
+
+    stats = dataset_stats(dataset_dir)
+    ds = datasets.load_dataset("parquet", data_dir=str(dataset_dir), split="train")
+    assert stats["samples"] == len(ds) and stats["routes"] == 1
+    assert sum(stats["counts"]["num_cavs"].values()) == len(ds) and stats["counts"]["num_cavs"] == {
+        2: len(ds)
+    }
+    assert stats["counts"]["reason"] == dict(zip(*np.unique(ds["reason"], return_counts=True), strict=True))
+    assert 0 < stats["bytes_per_sample"] < 20_000
+    assert stats["ranges"]["path end x [m]"]["max"] == pytest.approx(19.0, abs=1e-3)  # a straight road
+    result = CliRunner().invoke(app, ["data", "stats", str(dataset_dir)])
+    assert result.exit_code == 0 and f"{len(ds)} samples from 1 routes" in result.output
+    out = tmp_path / "grid.png"
+    result = CliRunner().invoke(app, ["data", "show", str(dataset_dir), "-o", str(out), "--count", "3"])
+    assert result.exit_code == 0, result.output
+    assert out.stat().st_size > 10_000
+    result = CliRunner().invoke(app, ["data", "show", str(dataset_dir), "-o", str(out), "--types", "Nope"])
+    assert result.exit_code == 1 and "Nope" in result.output
