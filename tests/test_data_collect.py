@@ -11,15 +11,20 @@ import datasets
 import numpy as np
 import pytest
 
-from cmudrive.bench.evaluator import EvalConfig
+from cmudrive.agents import Observations
+from cmudrive.agents.expert import ExpertAgent
+from cmudrive.bench.evaluator import EvalConfig, RouteHooks
+from cmudrive.bench.records import STATUS_AGENT_CRASHED
 from cmudrive.bench.routes import CavSpec, RouteSpec, read_routes
 from cmudrive.bench.runner import ProgressCallback, RouteTask, run_task
 from cmudrive.data import (
     COLUMNS,
     BenchmarkRouteError,
+    ShardJob,
     check_not_benchmark,
     collect,
     features,
+    load_shards,
     shard_path,
     unpack_occupancy,
 )
@@ -27,6 +32,7 @@ from cmudrive.data.collector import SAMPLE_EVERY
 from cmudrive.maps import RoadMap
 from cmudrive.maps.coords import map_to_carla
 from cmudrive.sim.background import BackgroundConfig
+from cmudrive.sim.dynamics import Controls
 
 EMPTY = EvalConfig(tick_cap=300, background=BackgroundConfig(vehicles=0, pedestrians=0))
 ROUTES = Path(__file__).resolve().parents[1] / "cmudrive" / "assets" / "routes"
@@ -85,6 +91,7 @@ def test_shards_load_with_datasets_and_keep_the_schema(dataset_dir: Path) -> Non
     assert os.path.isdir(dataset_dir / ".routes")  # the route records sit beside the shards, not in the data
     same = datasets.load_dataset(str(dataset_dir), split="train")  # the folder alone: parquet inferred
     assert same.features == ds.features and len(same) == len(ds)
+    assert load_shards(dataset_dir, columns=["cav", "tick"]).column_names == ["cav", "tick"]
 
 
 def test_straight_constant_speed_drive_has_straight_evenly_spaced_waypoints(dataset_dir: Path) -> None:
@@ -208,3 +215,20 @@ def test_stats_and_show_commands(dataset_dir: Path, tmp_path: Path) -> None:
     assert out.stat().st_size > 10_000
     result = CliRunner().invoke(app, ["data", "show", str(dataset_dir), "-o", str(out), "--types", "Nope"])
     assert result.exit_code == 1 and "Nope" in result.output
+
+
+class RaisesAtTick30(ExpertAgent):
+    def run_step(self, obs: Observations) -> Controls:
+        if obs.tick == 30:
+            raise RuntimeError("expert failure at tick 30")
+        return super().run_step(obs)
+
+
+def test_a_route_that_crashes_midway_leaves_no_shard(mini: RoadMap, mini_net: Path, tmp_path: Path) -> None:
+    route = lane_route(mini, mini_net, "crashes", [("CE_1", 5.0, 120.0)])
+    schema = features().arrow_schema
+    result = ShardJob(str(tmp_path), schema)(route, RaisesAtTick30, EMPTY, RouteHooks())
+    assert result.status == STATUS_AGENT_CRASHED and "expert failure at tick 30" in (result.error or "")
+    assert not shard_path(tmp_path, "crashes").exists() and not list(tmp_path.glob(".*.tmp"))
+    with pytest.raises(FileNotFoundError, match=r"no \.parquet shard"):
+        load_shards(tmp_path)

@@ -142,7 +142,7 @@ def load_shards(out: Path | str, columns: Iterable[str] | None = None) -> datase
 
     files = [str(p) for p in shard_paths(Path(out))]
     if not files:
-        raise FileNotFoundError(f"{out}: no *{SHARD_SUFFIX} shard")
+        raise FileNotFoundError(f"{out}: no {SHARD_SUFFIX} shard")
     ds = datasets.load_dataset("parquet", data_files=files, split="train")
     if columns is not None:
         ds = ds.select_columns(list(columns))
