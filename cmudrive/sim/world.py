@@ -329,6 +329,7 @@ class World:
         self.cav_clipped[slice(None) if every else active] += check.clipped
         self._advance_cavs(active, check.controls)
         self._push_layer()
+        self.lights.update()
         t1 = perf_counter()
         arrived = self.sumo.step()
         if not arrived.isdisjoint(self._cav_in_sumo):
