@@ -21,7 +21,9 @@ def make_row(i: int, seed: int = 0) -> dict[str, Any]:
         "other_cavs": [[3, 12.0, -3.5, 0.1], [7, 95.0, 0.0, 0.0], [2, -6.0, 1.0, 3.1]][: 1 + i % 3],
         "path": forward,
         "speed_waypoints": np.stack([np.arange(1, 11) * (0.5 + 0.2 * i), np.zeros(10)], axis=1),
-        "commentary": ["Follow the route. Accelerate.", "Turn left. Stop now because of the red light."][i % 2],
+        "commentary": ["Follow the route. Accelerate.", "Turn left. Stop now because of the red light."][
+            i % 2
+        ],
         "communication": "CAV 3 can see the pedestrian." if i % 2 else "",
         "partner_label": 3 if i % 2 else -1,
         "partner": 3,

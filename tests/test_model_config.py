@@ -10,7 +10,7 @@ from cmudrive.model.config import NAMED_CONFIGS, ModelConfig, get_config
 
 pytest.importorskip("transformers", reason="the model needs the 'model' extra (torch, transformers, peft)")
 
-from cmudrive.model.tokenizer import (  # noqa: E402
+from cmudrive.model.tokenizer import (
     IMG_CONTEXT,
     TARGET_POINT,
     TINY_TOKENIZER_DIR,

@@ -9,11 +9,11 @@ from PIL import Image
 pytest.importorskip("torch", reason="the model needs the 'model' extra (torch, transformers, peft)")
 pytest.importorskip("transformers", reason="the model needs the 'model' extra (torch, transformers, peft)")
 
-import torch  # noqa: E402
+import torch
 
-from cmudrive.model import VLAProcessor, get_config, parse_partner  # noqa: E402
-from cmudrive.model.processor import IGNORE_INDEX, IMAGE_MEAN, IMAGE_STD  # noqa: E402
-from tests.model_rows import make_row, rows  # noqa: E402
+from cmudrive.model import VLAProcessor, get_config, parse_partner
+from cmudrive.model.processor import IGNORE_INDEX, IMAGE_MEAN, IMAGE_STD
+from tests.model_rows import make_row, rows
 
 
 @pytest.fixture(scope="module")
@@ -28,7 +28,7 @@ def baseline() -> VLAProcessor:
 
 def test_batch_shapes_and_left_padding(coop: VLAProcessor) -> None:
     batch = coop(rows(3))
-    b, length = batch.input_ids.shape
+    b = batch.input_ids.shape[0]
     assert batch.pixel_values.shape == (3, 3, 3, 64, 64)  # 2 camera tiles + 1 BEV tile of 64 px
     assert coop.tokens_per_image == 16  # (64 / 8)^2 patches, pixel shuffle 0.5 -> 16
     assert batch.target_points.shape == (3, 2, 2)
@@ -53,11 +53,14 @@ def test_labels_cover_exactly_the_answer(coop: VLAProcessor) -> None:
     assert answer[first:].all() and not answer[:first].any()  # one contiguous block at the end
     assert torch.equal(labels[answer], ids[answer])
     text = coop.tokenizer.decode(ids[answer].tolist(), skip_special_tokens=True)
-    assert text == " Turn left. Stop now because of the red light. Communication: CAV 3 can see the pedestrian."
+    assert (
+        text == " Turn left. Stop now because of the red light. Communication: CAV 3 can see the pedestrian."
+    )
     prompt = coop.tokenizer.decode(ids[:first].tolist(), skip_special_tokens=True)
     # CAV 7 at 95 m is beyond the 70 m range; the target points are embeddings, not text
     assert prompt.endswith(
-        "\nCurrent speed: 3.0 m/s. Target waypoint: . Other CAVs: CAV 3 at (12.0, -3.5). What should the ego do next?"
+        "\nCurrent speed: 3.0 m/s. Target waypoint: . Other CAVs: CAV 3 at (12.0, -3.5). "
+        "What should the ego do next?"
     )
 
 
@@ -105,7 +108,9 @@ def test_baseline_takes_no_bev_no_other_cavs_no_communication(baseline: VLAProce
     assert "CAV" not in text and "Communication" not in text
     changed = {**row, "merged_bev": None, "other_cavs": [[1, 5.0, 5.0, 0.0]], "communication": "x"}
     again = baseline([changed])
-    assert torch.equal(again.input_ids, batch.input_ids) and torch.equal(again.pixel_values, batch.pixel_values)
+    assert torch.equal(again.input_ids, batch.input_ids) and torch.equal(
+        again.pixel_values, batch.pixel_values
+    )
 
 
 def test_communication_must_name_the_partner_label(coop: VLAProcessor) -> None:

@@ -36,10 +36,10 @@ def __getattr__(name: str) -> Any:
 __all__ = [
     "NAMED_CONFIGS",
     "TINY_TOKENIZER_DIR",
+    "V2VVLA",
     "LoraSettings",
     "ModelConfig",
     "TextConfig",
-    "V2VVLA",
     "VLABatch",
     "VLAOutput",
     "VLAPrediction",

@@ -35,7 +35,9 @@ class VisionConfig:
 
     def __post_init__(self) -> None:
         if self.image_size % self.patch_size:
-            raise ValueError(f"image_size {self.image_size} is not a multiple of patch_size {self.patch_size}")
+            raise ValueError(
+                f"image_size {self.image_size} is not a multiple of patch_size {self.patch_size}"
+            )
         if (self.image_size // self.patch_size) % 2:
             raise ValueError("the patch grid side must be even (pixel shuffle halves it)")
         if self.hidden_size % self.num_heads:
@@ -105,7 +107,9 @@ class ModelConfig:
 
     def __post_init__(self) -> None:
         if self.pretrained_path is not None and (self.vision is not None or self.text is not None):
-            raise ValueError("with pretrained_path the checkpoint defines the architecture: vision/text must be None")
+            raise ValueError(
+                "with pretrained_path the checkpoint defines the architecture: vision/text must be None"
+            )
         if self.pretrained_path is None and (self.vision is None or self.text is None):
             raise ValueError(
                 f"config {self.name!r}: set pretrained_path (a local InternVL checkpoint directory) "
@@ -161,7 +165,9 @@ def _from_dict(cls: type[T], data: dict[str, Any]) -> T:
 NAMED_CONFIGS: dict[str, ModelConfig] = {
     "tiny": ModelConfig(
         name="tiny",
-        vision=VisionConfig(hidden_size=128, num_layers=4, num_heads=4, intermediate_size=512, image_size=64, patch_size=8),
+        vision=VisionConfig(
+            hidden_size=128, num_layers=4, num_heads=4, intermediate_size=512, image_size=64, patch_size=8
+        ),
         text=TextConfig(hidden_size=192, num_layers=4, num_heads=6, num_kv_heads=2, intermediate_size=512),
         llm_training="full",
         target_point_hidden=(32, 64),

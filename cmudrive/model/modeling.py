@@ -17,10 +17,11 @@ V the vocabulary, N = n_images tiles per row of side S, T visual tokens per tile
 
 from __future__ import annotations
 
+import itertools
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import torch
 import torch.nn.functional as F
@@ -75,11 +76,14 @@ def backbone_config(config: ModelConfig, tokenizer: PreTrainedTokenizerBase) -> 
     return InternVLConfig(
         vision_config=vision,
         text_config=text,
-        image_token_id=tokenizer.convert_tokens_to_ids(IMG_CONTEXT),
+        image_token_id=token_id(tokenizer, IMG_CONTEXT),
         image_seq_length=(v.image_size // v.patch_size) ** 2 // 4,
         downsample_ratio=0.5,
-        attn_implementation=config.attn_implementation,
     )
+
+
+def token_id(tokenizer: PreTrainedTokenizerBase, token: str) -> int:
+    return int(tokenizer.get_vocab()[token])
 
 
 def build_backbone(
@@ -87,13 +91,17 @@ def build_backbone(
 ) -> InternVLForConditionalGeneration:
     """Random backbone of the config's sizes, or the pretrained one in ``config.pretrained_path``."""
     if config.pretrained_path is None:
-        return InternVLForConditionalGeneration(backbone_config(config, tokenizer))
+        backbone = InternVLForConditionalGeneration(backbone_config(config, tokenizer))
+        backbone.set_attn_implementation(config.attn_implementation)
+        return backbone
     backbone = InternVLForConditionalGeneration.from_pretrained(
         config.pretrained_path, dtype=torch.float32, attn_implementation=config.attn_implementation
     )
-    if backbone.config.image_token_id != tokenizer.convert_tokens_to_ids(IMG_CONTEXT):
-        raise ValueError(f"{config.pretrained_path}: the config's image_token_id is not the tokenizer's {IMG_CONTEXT}")
-    if len(tokenizer) > backbone.get_input_embeddings().weight.shape[0]:  # <TARGET_POINT> was added
+    if backbone.config.image_token_id != token_id(tokenizer, IMG_CONTEXT):
+        raise ValueError(
+            f"{config.pretrained_path}: the config's image_token_id is not the tokenizer's {IMG_CONTEXT}"
+        )
+    if len(tokenizer) > cast(Qwen2Config, backbone.config.text_config).vocab_size:  # <TARGET_POINT> added
         backbone.resize_token_embeddings(len(tokenizer))
     return backbone
 
@@ -116,7 +124,7 @@ class TargetPointEncoder(nn.Module):
         super().__init__()
         sizes = [2, *hidden]
         layers: list[nn.Module] = []
-        for a, b in zip(sizes[:-1], sizes[1:]):
+        for a, b in itertools.pairwise(sizes):
             layers += [nn.Linear(a, b), nn.ReLU()]
         self.mlp = nn.Sequential(*layers, nn.Linear(sizes[-1], out_size))
         self.scale = scale  # [m]
@@ -176,16 +184,23 @@ def positions(mask: torch.Tensor) -> torch.Tensor:
 class V2VVLA(nn.Module):
     """V2V-VLA (``config.cooperative``) or the non-cooperative SimLingo-style baseline."""
 
-    def __init__(self, config: ModelConfig, backbone: InternVLForConditionalGeneration, tokenizer: PreTrainedTokenizerBase) -> None:
+    def __init__(
+        self,
+        config: ModelConfig,
+        backbone: InternVLForConditionalGeneration,
+        tokenizer: PreTrainedTokenizerBase,
+    ) -> None:
         super().__init__()
         self.config = config
         self.backbone = backbone
         add_lora(config, backbone)
-        vision = backbone.config.vision_config
+        vision = cast(InternVLVisionConfig, backbone.config.vision_config)
         side = vision.image_size if isinstance(vision.image_size, int) else vision.image_size[0]
         self.processor = VLAProcessor(config, tokenizer, side, int(backbone.config.image_seq_length))
-        hidden = backbone.config.text_config.hidden_size
-        self.target_point_encoder = TargetPointEncoder(config.target_point_hidden, hidden, config.target_point_scale)
+        hidden = cast(Qwen2Config, backbone.config.text_config).hidden_size
+        self.target_point_encoder = TargetPointEncoder(
+            config.target_point_hidden, hidden, config.target_point_scale
+        )
         n_queries = config.n_path + config.n_speed
         self.waypoint_queries = nn.Parameter(torch.randn(n_queries, hidden) * 0.02)  # (Q, H)
         self.path_head = WaypointHead(hidden, config.waypoint_head_hidden)
@@ -249,20 +264,26 @@ class V2VVLA(nn.Module):
         out = VLAOutput(logits=logits, path=path, speed_waypoints=speed)
         if batch.labels is not None and batch.path is not None and batch.speed_waypoints is not None:
             out.lm_loss = answer_loss(logits, batch.labels)
-            out.waypoint_loss = F.smooth_l1_loss(path, batch.path) + F.smooth_l1_loss(speed, batch.speed_waypoints)
+            out.waypoint_loss = F.smooth_l1_loss(path, batch.path) + F.smooth_l1_loss(
+                speed, batch.speed_waypoints
+            )
             out.loss = out.lm_loss + out.waypoint_loss
         return out
 
     # ---- closed-loop inference ----------------------------------------------------------------------
     @torch.no_grad()
-    def predict(self, batch: VLABatch | list[dict[str, Any]], max_new_tokens: int | None = None) -> VLAPrediction:
+    def predict(
+        self, batch: VLABatch | list[dict[str, Any]], max_new_tokens: int | None = None
+    ) -> VLAPrediction:
         """Greedy text (until ``</s>`` or ``max_new_tokens``, default ``config.max_answer_tokens``), then
         the waypoint queries after it in the same KV cache: the layout the model was trained on. All CAVs
         of a tick go in one batch. ``max_new_tokens=0`` skips the text (queries right after ``</s>``)."""
         was_training = self.training
         self.eval()
         try:
-            return self._predict(batch, self.config.max_answer_tokens if max_new_tokens is None else max_new_tokens)
+            return self._predict(
+                batch, self.config.max_answer_tokens if max_new_tokens is None else max_new_tokens
+            )
         finally:
             self.train(was_training)
 
@@ -274,15 +295,22 @@ class V2VVLA(nn.Module):
         mask = torch.cat([mask, mask.new_ones(b, q)], dim=1)  # (B, L+n+Q)
         lm = self.backbone.model.language_model
         states = lm(
-            inputs_embeds=self.queries(b), attention_mask=mask, position_ids=positions(mask)[:, -q:], past_key_values=cache
+            inputs_embeds=self.queries(b),
+            attention_mask=mask,
+            position_ids=positions(mask)[:, -q:],
+            past_key_values=cache,
         ).last_hidden_state  # (B, Q, H)
         path, speed = self.waypoints(states)
-        answer_ids = [row[k].tolist() for row, k in zip(answer.cpu(), keep.cpu())]
-        text = [self.tokenizer.decode(a, skip_special_tokens=True).strip() for a in answer_ids]
+        answer_ids = [row[k].tolist() for row, k in zip(answer.cpu(), keep.cpu(), strict=True)]
+        text = [str(self.tokenizer.decode(a, skip_special_tokens=True)).strip() for a in answer_ids]
         partner = [parse_partner(t) if self.config.cooperative else -1 for t in text]
-        return VLAPrediction(path=path, speed_waypoints=speed, text=text, partner=partner, answer_ids=answer_ids)
+        return VLAPrediction(
+            path=path, speed_waypoints=speed, text=text, partner=partner, answer_ids=answer_ids
+        )
 
-    def _greedy(self, batch: VLABatch, max_new_tokens: int) -> tuple[torch.Tensor, torch.Tensor, Any, torch.Tensor]:
+    def _greedy(
+        self, batch: VLABatch, max_new_tokens: int
+    ) -> tuple[torch.Tensor, torch.Tensor, Any, torch.Tensor]:
         """Prefill the prompt, then decode greedily, feeding each token at once. Returns the answer ids
         (B, n) (pad after a row's ``</s>``; ``</s>`` forced after ``max_new_tokens``), which of them belong
         to the answer (B, n) bool, the KV cache of prompt + answer, and its attention mask (B, L+n)."""
@@ -290,13 +318,17 @@ class V2VVLA(nn.Module):
         embed = self.backbone.get_input_embeddings()
         eos, pad = self.processor.eos_token_id, self.processor.pad_token_id
         mask = batch.attention_mask  # (B, L), grows by one column per step
-        out = lm(inputs_embeds=self.embed(batch), attention_mask=mask, position_ids=positions(mask), use_cache=True)
+        out = lm(
+            inputs_embeds=self.embed(batch), attention_mask=mask, position_ids=positions(mask), use_cache=True
+        )
         cache = out.past_key_values
         alive = torch.ones(len(batch), dtype=torch.bool, device=mask.device)  # no </s> yet
         tokens, keep = [], []
         for step in range(max_new_tokens + 1):
             logits = head(out.last_hidden_state[:, -1])  # (B, V)
-            best = logits.argmax(-1) if step < max_new_tokens else torch.full_like(alive, eos, dtype=torch.long)
+            best = (
+                logits.argmax(-1) if step < max_new_tokens else torch.full_like(alive, eos, dtype=torch.long)
+            )
             token = torch.where(alive, best, pad)  # (B,)
             tokens.append(token)
             keep.append(alive.clone())
@@ -334,14 +366,15 @@ class V2VVLA(nn.Module):
         if meta.get("format_version") != FORMAT_VERSION:
             raise ValueError(f"{src}: format_version {meta.get('format_version')}, expected {FORMAT_VERSION}")
         config = ModelConfig.from_dict(meta["config"])
-        hf_config = InternVLConfig.from_pretrained(str(src / BACKBONE_DIR), attn_implementation=config.attn_implementation)
-        tokenizer = load_tokenizer(src / TOKENIZER_DIR)
-        model = cls(config, InternVLForConditionalGeneration(hf_config), tokenizer)
+        backbone = InternVLForConditionalGeneration(InternVLConfig.from_pretrained(str(src / BACKBONE_DIR)))
+        backbone.set_attn_implementation(config.attn_implementation)
+        model = cls(config, backbone, load_tokenizer(src / TOKENIZER_DIR))
         load_model(model, str(src / WEIGHTS_FILE), strict=True, device=str(device))
         return model.to(device)
 
     def parameter_counts(self) -> dict[str, int]:
         """Parameters per part (tied embeddings counted once)."""
+
         def count(module: nn.Module) -> int:
             return sum(p.numel() for p in module.parameters())
 

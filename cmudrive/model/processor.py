@@ -23,7 +23,7 @@ import json
 import math
 import re
 from collections.abc import Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -59,8 +59,11 @@ class VLABatch:
     partner_label: torch.Tensor | None = None  # (B,) int64, -1 for none
 
     def to(self, device: torch.device | str) -> VLABatch:
-        moved = {f.name: getattr(self, f.name) for f in fields(self)}
-        return VLABatch(**{k: None if v is None else v.to(device) for k, v in moved.items()})
+        moved: dict[str, Any] = {}
+        for f in fields(self):
+            value = getattr(self, f.name)
+            moved[f.name] = None if value is None else value.to(device)
+        return replace(self, **moved)
 
     def __len__(self) -> int:
         return int(self.input_ids.shape[0])
@@ -107,7 +110,9 @@ class VLAProcessor:
         self.pad_token_id = int(tokenizer.pad_token_id)
 
     @classmethod
-    def from_config(cls, config: ModelConfig, tokenizer: PreTrainedTokenizerBase | None = None) -> VLAProcessor:
+    def from_config(
+        cls, config: ModelConfig, tokenizer: PreTrainedTokenizerBase | None = None
+    ) -> VLAProcessor:
         """Geometry from ``config.vision`` or, for a pretrained backbone, from its ``config.json``."""
         tokenizer = tokenizer or load_tokenizer(config.tokenizer_path or config.pretrained_path)
         if config.vision is not None:
@@ -165,7 +170,9 @@ class VLAProcessor:
         text = f"{images}\n{text} {self.config.task_prompt}"
         if self.config.chat_template:
             messages = [{"role": "user", "content": text}]
-            text = str(self.tokenizer.apply_chat_template(messages, add_generation_prompt=True, tokenize=False))
+            text = str(
+                self.tokenizer.apply_chat_template(messages, add_generation_prompt=True, tokenize=False)
+            )
         return text
 
     def answer(self, row: dict[str, Any]) -> str:
