@@ -2,20 +2,23 @@
 
 from __future__ import annotations
 
+import importlib.util
 import json
 
 import pytest
 
 from cmudrive.model.config import NAMED_CONFIGS, ModelConfig, get_config
-
-pytest.importorskip("transformers", reason="the model needs the 'model' extra (torch, transformers, peft)")
-
 from cmudrive.model.tokenizer import (
     IMG_CONTEXT,
     TARGET_POINT,
     TINY_TOKENIZER_DIR,
     build_tiny_tokenizer,
     load_tokenizer,
+)
+
+needs_transformers = pytest.mark.skipif(
+    importlib.util.find_spec("transformers") is None,
+    reason="the tokenizer needs the 'model' extra (torch, transformers, peft)",
 )
 
 
@@ -52,6 +55,7 @@ def test_config_json_round_trip() -> None:
     assert again == cfg
 
 
+@needs_transformers
 def test_shipped_tiny_tokenizer_is_the_one_the_builder_makes() -> None:
     shipped, built = load_tokenizer(), build_tiny_tokenizer()
     assert shipped.get_vocab() == built.get_vocab()
@@ -61,6 +65,7 @@ def test_shipped_tiny_tokenizer_is_the_one_the_builder_makes() -> None:
     assert (TINY_TOKENIZER_DIR / "tokenizer.json").stat().st_size < 100_000
 
 
+@needs_transformers
 def test_special_tokens_are_single_ids_and_digits_are_split() -> None:
     tok = load_tokenizer()
     ids = tok(f"{IMG_CONTEXT}{IMG_CONTEXT}{TARGET_POINT} 12.5", add_special_tokens=False)["input_ids"]

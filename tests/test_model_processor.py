@@ -59,7 +59,7 @@ def test_labels_cover_exactly_the_answer(coop: VLAProcessor) -> None:
     prompt = coop.tokenizer.decode(ids[:first].tolist(), skip_special_tokens=True)
     # CAV 7 at 95 m is beyond the 70 m range; the target points are embeddings, not text
     assert prompt.endswith(
-        "\nCurrent speed: 3.0 m/s. Target waypoint: . Other CAVs: CAV 3 at (12.0, -3.5). "
+        "\nCurrent speed: 3.0 m/s. Target waypoint: . Other CAVs: CAV 3 at (12, -4). "
         "What should the ego do next?"
     )
 
@@ -93,8 +93,8 @@ def test_bev_is_padded_to_a_square_not_stretched(coop: VLAProcessor) -> None:
 
 
 def test_other_cavs_in_range_nearest_first(coop: VLAProcessor) -> None:
-    text = coop.others_text([[5, 40.0, 0.0, 0.0], [9, 3.0, -4.0, 0.0], [1, 0.0, 71.0, 0.0]])
-    assert text == "Other CAVs: CAV 9 at (3.0, -4.0), CAV 5 at (40.0, 0.0)."  # CAV 1 is beyond 70 m
+    text = coop.others_text([[5, 40.2, 0.4, 0.0], [9, 3.0, -4.2, 0.0], [1, 0.0, 71.0, 0.0]])
+    assert text == "Other CAVs: CAV 9 at (3, -4), CAV 5 at (40, 0)."  # CAV 1 is beyond 70 m
     assert coop.others_text([]) == "Other CAVs: none."
     many = coop.others_text([[k, float(k + 1), 0.0, 0.0] for k in range(12)])
     assert many.count("CAV ") == 8 and "CAV 7 " in many and "CAV 8 " not in many

@@ -166,7 +166,7 @@ NAMED_CONFIGS: dict[str, ModelConfig] = {
     "tiny": ModelConfig(
         name="tiny",
         vision=VisionConfig(
-            hidden_size=128, num_layers=4, num_heads=4, intermediate_size=512, image_size=64, patch_size=8
+            hidden_size=128, num_layers=2, num_heads=4, intermediate_size=512, image_size=64, patch_size=8
         ),
         text=TextConfig(hidden_size=192, num_layers=4, num_heads=6, num_kv_heads=2, intermediate_size=512),
         llm_training="full",

@@ -153,10 +153,11 @@ class VLAProcessor:
 
     # ---- text ---------------------------------------------------------------------------------------
     def others_text(self, other_cavs: Sequence[Sequence[float]]) -> str:
-        """The nearest other CAVs within range, nearest first: "Other CAVs: CAV 3 at (12.5, -3.0), ..."."""
+        """The nearest other CAVs within range, nearest first, whole metres (ego frame, x forward, y left):
+        "Other CAVs: CAV 3 at (12, -3), ..." (digits are one token each, so every decimal costs tokens)."""
         near = [c for c in other_cavs if math.hypot(c[1], c[2]) <= self.config.other_cavs_range_m]
         near.sort(key=lambda c: math.hypot(c[1], c[2]))
-        listed = [f"CAV {int(c[0])} at ({c[1]:.1f}, {c[2]:.1f})" for c in near[: self.config.max_other_cavs]]
+        listed = [f"CAV {int(c[0])} at ({c[1]:.0f}, {c[2]:.0f})" for c in near[: self.config.max_other_cavs]]
         return "Other CAVs: " + (", ".join(listed) if listed else "none") + "."
 
     def prompt(self, row: dict[str, Any]) -> str:
