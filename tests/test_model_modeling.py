@@ -180,3 +180,11 @@ def test_save_load_gives_identical_outputs(tmp_path: Path) -> None:
     prompts = [{k: v for k, v in r.items() if k != "commentary"} for r in rows(2)]
     assert model.predict(prompts, 4).text == loaded.predict(prompts, 4).text
     assert (tmp_path / "model.safetensors").stat().st_size < 20e6
+
+
+def test_a_batch_whose_image_tokens_do_not_match_its_tiles_is_rejected(model: V2VVLA) -> None:
+    batch = model.processor([make_row(0)])
+    ids = batch.input_ids.clone()
+    ids[ids == model.processor.image_token_id] = model.processor.pad_token_id
+    with pytest.raises(ValueError, match="image tokens"):
+        model(VLABatch(**{**batch.__dict__, "input_ids": ids}))

@@ -206,6 +206,7 @@ class V2VVLA(nn.Module):
         self.path_head = WaypointHead(hidden, config.waypoint_head_hidden)
         self.speed_head = WaypointHead(hidden, config.waypoint_head_hidden)
         self._set_trainable()
+        self.train()  # from_pretrained leaves the backbone in eval mode; a new module trains
 
     @classmethod
     def from_config(cls, config: ModelConfig) -> V2VVLA:
@@ -237,6 +238,10 @@ class V2VVLA(nn.Module):
         tiles = batch.pixel_values.flatten(0, 1).to(embeds.dtype)  # (B*N, 3, S, S)
         image = self.backbone.model.get_image_features(pixel_values=tiles).pooler_output  # (B*N, T, H)
         image_mask = (ids == self.processor.image_token_id).unsqueeze(-1)  # (B, L, 1), B*N*T of them
+        if int(image_mask.sum()) != image.shape[0] * image.shape[1]:
+            raise ValueError(
+                f"{int(image_mask.sum())} image tokens for {image.shape[0]} tiles of {image.shape[1]}"
+            )
         embeds = embeds.masked_scatter(image_mask, image.to(embeds.dtype))
         points = self.target_point_encoder(batch.target_points.to(embeds.dtype))  # (B, 2, H)
         point_mask = (ids == self.processor.target_point_token_id).unsqueeze(-1)  # (B, L, 1), 2 per row
