@@ -88,7 +88,9 @@ def main() -> None:
     torch.manual_seed(0)
     rng = np.random.default_rng(0)
 
-    print("parameters (M): total / trainable / vision / projector / LLM base / LoRA / driving heads")
+    print(
+        "parameters (M): total / trainable / vision / projector / LLM base / LM head / LoRA / driving heads"
+    )
     for name, overrides in [("tiny", {}), ("tiny", {"cooperative": False}), ("small", {})]:
         counts = V2VVLA.from_config(get_config(name, **overrides)).parameter_counts()
         _print_counts(name + (" baseline" if overrides else ""), counts)
@@ -130,7 +132,7 @@ def main() -> None:
 
 
 def _print_counts(name: str, c: dict[str, int]) -> None:
-    keys = ("total", "trainable", "vision", "projector", "language_model", "lora", "driving_heads")
+    keys = ("total", "trainable", "vision", "projector", "language_model", "lm_head", "lora", "driving_heads")
     print(f"  {name:16s} " + " / ".join(f"{c[k] / 1e6:.2f}" for k in keys))
 
 

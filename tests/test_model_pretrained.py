@@ -57,6 +57,7 @@ def test_internvl2_1b_config_loads_a_local_checkpoint_and_round_trips(tmp_path: 
     assert embeddings.shape[0] == len(model.tokenizer)
     assert torch.equal(embeddings[: len(model.tokenizer) - 2], base.get_input_embeddings().weight)
     counts = model.parameter_counts()
+    assert counts["lm_head"] == 0  # tied to the (frozen) token embeddings, counted with the LLM
     assert counts["trainable"] == counts["total"] - counts["language_model"]  # frozen LLM base (+ embeddings)
 
     # geometry from the checkpoint's config.json; the prompt goes through its chat template

@@ -386,10 +386,13 @@ class V2VVLA(nn.Module):
         lm = self.backbone.model.language_model
         lora = sum(p.numel() for n, p in lm.named_parameters() if "lora_" in n)
         heads = count(self.target_point_encoder) + count(self.path_head) + count(self.speed_head)
+        head = self.backbone.lm_head.weight
+        untied = head is not self.backbone.get_input_embeddings().weight
         return {
             "vision": count(self.backbone.model.vision_tower),
             "projector": count(self.backbone.model.multi_modal_projector),
             "language_model": count(lm) - lora,
+            "lm_head": head.numel() if untied else 0,  # 0 when tied to the token embeddings
             "lora": lora,
             "driving_heads": heads + self.waypoint_queries.numel(),
             "total": count(self),
