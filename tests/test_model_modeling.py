@@ -188,3 +188,8 @@ def test_a_batch_whose_image_tokens_do_not_match_its_tiles_is_rejected(model: V2
     ids[ids == model.processor.image_token_id] = model.processor.pad_token_id
     with pytest.raises(ValueError, match="image tokens"):
         model(VLABatch(**{**batch.__dict__, "input_ids": ids}))
+
+
+def test_predict_refuses_a_training_batch(model: V2VVLA) -> None:
+    with pytest.raises(ValueError, match="with_answer=False"):
+        model.predict(model.processor(rows(1)))

@@ -125,3 +125,17 @@ def test_parse_partner() -> None:
     assert parse_partner("Stop now. Communication: none.") == -1
     assert parse_partner("Follow CAV 2. Communication: none.") == -1  # only the communication sentence counts
     assert parse_partner("Follow the route.") == -1
+
+
+def test_rows_read_back_from_a_hugging_face_dataset(coop: VLAProcessor) -> None:
+    """Image columns come back as PIL images, arrays as nested lists: the processor takes them as they are."""
+    datasets = pytest.importorskip("datasets", reason="needs the datasets package")
+    built = rows(2)
+    for r in built:
+        r["path"], r["speed_waypoints"] = r["path"].tolist(), r["speed_waypoints"].tolist()
+    ds = datasets.Dataset.from_list(built).cast_column("camera", datasets.Image())
+    read = list(ds)
+    assert isinstance(read[0]["camera"], Image.Image) and isinstance(read[0]["path"], list)
+    a, b = coop(built), coop(read)
+    assert torch.equal(a.input_ids, b.input_ids) and torch.equal(a.pixel_values, b.pixel_values)
+    assert torch.equal(a.path, b.path)  # type: ignore[arg-type]

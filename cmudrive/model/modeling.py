@@ -295,6 +295,8 @@ class V2VVLA(nn.Module):
     def _predict(self, batch: VLABatch | list[dict[str, Any]], max_new_tokens: int) -> VLAPrediction:
         device = self.waypoint_queries.device
         batch = (self.processor(batch, with_answer=False) if isinstance(batch, list) else batch).to(device)
+        if batch.labels is not None:
+            raise ValueError("predict takes prompts: batch the rows with processor(rows, with_answer=False)")
         b, q = len(batch), self.waypoint_queries.shape[0]
         answer, keep, cache, mask = self._greedy(batch, max_new_tokens)  # (B, n), (B, n), cache, (B, L+n)
         mask = torch.cat([mask, mask.new_ones(b, q)], dim=1)  # (B, L+n+Q)
