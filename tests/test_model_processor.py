@@ -139,3 +139,11 @@ def test_rows_read_back_from_a_hugging_face_dataset(coop: VLAProcessor) -> None:
     a, b = coop(built), coop(read)
     assert torch.equal(a.input_ids, b.input_ids) and torch.equal(a.pixel_values, b.pixel_values)
     assert torch.equal(a.path, b.path)  # type: ignore[arg-type]
+
+
+def test_processor_is_a_dataloader_collate_fn(coop: VLAProcessor) -> None:
+    from torch.utils.data import DataLoader
+
+    batches = list(DataLoader(rows(4), batch_size=2, collate_fn=coop))
+    assert [b.input_ids.shape[0] for b in batches] == [2, 2]
+    assert torch.equal(batches[1].path, coop(rows(4)[2:]).path)  # type: ignore[arg-type]

@@ -22,7 +22,7 @@ from __future__ import annotations
 import json
 import math
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -58,11 +58,18 @@ class VLABatch:
     speed_waypoints: torch.Tensor | None = None  # (B, n_speed, 2) float32 [m]
     partner_label: torch.Tensor | None = None  # (B,) int64, -1 for none
 
-    def to(self, device: torch.device | str) -> VLABatch:
+    def to(self, device: torch.device | str, non_blocking: bool = False) -> VLABatch:
+        return self._map(lambda t: t.to(device, non_blocking=non_blocking))
+
+    def pin_memory(self) -> VLABatch:
+        """For ``DataLoader(..., collate_fn=processor, pin_memory=True)``."""
+        return self._map(lambda t: t.pin_memory())
+
+    def _map(self, fn: Callable[[torch.Tensor], torch.Tensor]) -> VLABatch:
         moved: dict[str, Any] = {}
         for f in fields(self):
             value = getattr(self, f.name)
-            moved[f.name] = None if value is None else value.to(device)
+            moved[f.name] = None if value is None else fn(value)
         return replace(self, **moved)
 
     def __len__(self) -> int:
