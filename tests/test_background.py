@@ -309,23 +309,48 @@ def test_config_rejects_bad_values() -> None:
         BackgroundConfig(vehicle=3)  # type: ignore[call-arg]
 
 
-def test_initial_fill_leaves_room_to_stop_behind_a_cav(town: tuple[str | Path, RoadMap]) -> None:
-    """No vehicle starts behind a standing CAV on its road closer than it needs to stop from the lane's
-    speed at fill_decel, plus fill_stop_gap (at tick 0 SUMO cannot see the CAVs yet)."""
+def assert_room_to_stop_behind_cavs(world: World, bg: BackgroundActivity, cfg: BackgroundConfig) -> None:
+    """No vehicle started behind a standing CAV on its road closer than it needs to stop from the lane's
+    speed at fill_decel, plus fill_stop_gap; "behind" measured along the chord between the two (the mean
+    of the two headings), so that curved roads count."""
+    m = world.map
+    yaw = world.cav_state.yaw
+    assert bg.spawns
+    for rec in bg.spawns:
+        rel = cav_xy(world) - np.array([rec.x, rec.y])
+        chord = np.arctan2(np.sin(yaw) + np.sin(rec.heading), np.cos(yaw) + np.cos(rec.heading))
+        along = rel[:, 0] * np.cos(chord) + rel[:, 1] * np.sin(chord)
+        across = -rel[:, 0] * np.sin(chord) + rel[:, 1] * np.cos(chord)
+        reach = m.lane_speed[rec.lane] ** 2 / (2.0 * cfg.fill_decel) + cfg.fill_stop_gap
+        same_way = np.cos(yaw - rec.heading) > 0.5
+        behind = same_way & (along > 0.0) & (along < reach) & (np.abs(across) < cfg.fill_behind_width)
+        assert not behind.any(), (rec.actor_id, rec.initial, along, across)
+
+
+def test_spawns_leave_room_to_stop_behind_a_standing_cav(town: tuple[str | Path, RoadMap]) -> None:
+    """At tick 0 SUMO cannot see the CAVs yet: the background must leave them room."""
     cfg = BackgroundConfig(vehicles=80, pedestrians=0)
     with standing_world(town, cfg) as (world, bg):
-        m = world.map
-        yaw = world.cav_state.yaw
-        for rec in bg.spawns:
-            if not rec.initial:
-                continue
-            rel = cav_xy(world) - np.array([rec.x, rec.y])
-            along = rel[:, 0] * np.cos(rec.heading) + rel[:, 1] * np.sin(rec.heading)
-            across = -rel[:, 0] * np.sin(rec.heading) + rel[:, 1] * np.cos(rec.heading)
-            reach = m.lane_speed[rec.lane] ** 2 / (2.0 * cfg.fill_decel) + cfg.fill_stop_gap
-            same_way = np.cos(yaw - rec.heading) > 0.5
-            behind = same_way & (along > 0.0) & (along < reach) & (np.abs(across) < cfg.fill_behind_width)
-            assert not behind.any(), (rec.actor_id, along, across)
+        for _ in range(40):  # later spawns too, while the CAVs stand
+            world.tick(Controls(np.zeros(2), np.zeros(2), np.ones(2)))
+        assert_room_to_stop_behind_cavs(world, bg, cfg)
+
+
+def test_room_behind_a_cav_on_a_curved_highway() -> None:
+    """Town04's highway curves through ~30 deg in 30 m at (-453, -41): a car spawned 32 m behind a standing
+    CAV there at 29 m/s ran into it within 1.2 s (ConstructionObstacle_1)."""
+    m = load_map("Town04")
+    lane = m.lane("41_2")
+    s, _ = m.index.project(np.array([[-453.4, -41.5]]), np.array([lane]))
+    cfg = BackgroundConfig(vehicles=80, pedestrians=0)
+    with World(WorldConfig("Town04", seed=7), road_map=m) as world:
+        world.add_cav(
+            RoutePlanner(m).plan_lanes(LanePos(lane, float(s[0])), LanePos(lane, float(s[0]) + 10.0))
+        )
+        bg = BackgroundActivity(cfg)
+        world.background = bg
+        bg.populate(world)
+        assert_room_to_stop_behind_cavs(world, bg, cfg)
 
 
 def test_background_car_deadlocked_in_front_of_a_standing_cav_is_removed(

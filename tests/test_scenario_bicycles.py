@@ -16,6 +16,7 @@ from cmudrive.bench.routes import RouteSpec
 from cmudrive.bench.scenarios import PlanPath, Scenario, ScenarioError, plan_scenarios
 from cmudrive.maps import LaneKind, RoadMap, load_map
 from cmudrive.maps.coords import map_to_carla
+from cmudrive.sim.traffic_lights import YELLOW_TIME
 from tests.scenario_helpers import EMPTY, path_cav, run, scenario, track, trigger
 
 APPROACH, LEFT_EXIT, BIKE_LANE = "J0_2-J1_2_2", "J1_2-J1_3_2", "J2_2-J1_2_1"  # downtown
@@ -98,15 +99,18 @@ def test_bicycles_ride_the_bike_lane_across_the_cav_turn_at_the_flow_speed(
     link = int(np.flatnonzero((m.link_from == route.lane[before]) & (m.link_tls >= 0))[0])
     light, k = int(m.link_tls[link]), int(m.link_tls_index[link])
     states = [str(log.tls_state(i)[light]) for i in range(log.num_ticks)]
-    red = states[tick(act) + 1 : tick(act + 5.0)]
-    assert red and all(set(s) == {"r"} for s in red)  # 5 s all red
+    # 5 s all red; signals that were green show yellow for the first YELLOW_TIME of it
+    red = states[tick(act + YELLOW_TIME) + 1 : tick(act + 5.0)]
+    assert red and all(set(s) == {"r"} for s in red)
+    assert all(set(s) <= {"r", "y"} for s in states[tick(act) + 1 : tick(act + YELLOW_TIME)])
     green = states[tick(act + 5.0) + 1 : tick(end)]
     assert green and all(s[k] == "G" and set(s[:k] + s[k + 1 :]) <= {"r", "G"} for s in green)
     ego_links = np.flatnonzero((m.link_from == route.lane[before]) & (m.link_tls == light))
     others = np.setdiff1d(np.arange(len(states[0])), m.link_tls_index[ego_links])
     assert all(set(np.array(list(s))[others]) == {"r"} for s in green)  # every other signal red
     program = set(m.tls_phases(light)[1].tolist())
-    assert {states[i] for i in range(tick(end) + 2, log.num_ticks)} <= program  # released
+    released = tick(end + YELLOW_TIME) + 2  # (signals the program turns red show yellow first)
+    assert {states[i] for i in range(released, log.num_ticks)} <= program  # released
     assert all(np.isnan(t[tick(end) + 2 :, 0]).all() for t in tracks.values())  # bicycles removed at the end
 
 

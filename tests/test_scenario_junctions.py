@@ -18,6 +18,7 @@ from cmudrive.bench.scenarios import ScenarioConfig
 from cmudrive.bench.scenarios.base import Scenario
 from cmudrive.maps import RoadMap, load_map
 from cmudrive.sim.dynamics import Controls
+from cmudrive.sim.traffic_lights import YELLOW_TIME
 from tests.scenario_helpers import (
     EMPTY,
     StopsAt,
@@ -88,19 +89,22 @@ def test_red_light_encounter_holds_red_then_green_then_releases(
     signal = ego_signal(m, spec, log)
     end, _, act = seen[0]
     tick = lambda t: round(t / 0.05) - 1  # noqa: E731 (log tick of a world time)
-    assert set(signal[tick(act) + 1 : tick(act + 5.0)]) == {"r"}  # 5 s all red
+    # 5 s red, the first YELLOW_TIME of it yellow where the light was green when the scenario began
+    assert set(signal[tick(act + YELLOW_TIME) + 1 : tick(act + 5.0)]) == {"r"}
+    assert set(signal[tick(act) + 1 : tick(act + YELLOW_TIME)]) <= {"r", "y"}
     assert set(signal[tick(act + 5.0) + 1 : tick(end)]) <= {"G"}  # then green until the end
     route = spec.dense_routes(m)[0]
     before = int(np.flatnonzero(route.in_junction)[0]) - 1
     light = int(m.link_tls[np.flatnonzero((m.link_from == route.lane[before]) & (m.link_tls >= 0))[0]])
     program = set(m.tls_phases(light)[1].tolist())
-    after = [str(log.tls_state(k)[light]) for k in range(tick(end) + 2, log.num_ticks)]
+    released = tick(end + YELLOW_TIME) + 2  # (signals the program turns red show yellow first)
+    after = [str(log.tls_state(k)[light]) for k in range(released, log.num_ticks)]
     assert set(after) <= program  # released: back to the states of the light's own program
     _ends_past_junction(m, spec, seen[0][1], 10.0)
 
 
 @pytest.mark.parametrize(("town", "a", "b"), [("downtown", A, STRAIGHT), ("Town03", "-2_3", "-3_3")])
-def test_green_light_encounter_gives_5_s_green_then_5_s_red(
+def test_green_light_encounter_gives_5_s_green_then_yellow_and_red(
     town: str, a: str, b: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     seen = ends(monkeypatch)
@@ -111,7 +115,9 @@ def test_green_light_encounter_gives_5_s_green_then_5_s_red(
     signal = ego_signal(m, spec, log)
     tick = lambda t: round(t / 0.05) - 1  # noqa: E731 (log tick of a world time)
     assert set(signal[tick(act) + 1 : tick(min(act + 5.0, end))]) == {"G"}  # 5 s green
-    assert set(signal[tick(act + 5.0) + 1 : tick(end)]) <= {"r"}  # then all red
+    # then yellow for YELLOW_TIME and red: the CAV is never shown green -> red at once
+    assert set(signal[tick(act + 5.0) + 1 : tick(min(act + 5.0 + YELLOW_TIME, end))]) <= {"y"}
+    assert set(signal[tick(act + 5.0 + YELLOW_TIME) + 2 : tick(end)]) <= {"r"}
     assert end <= act + 10.0 + 0.1  # ends with the light sequence at the latest
 
 

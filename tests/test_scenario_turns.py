@@ -14,6 +14,7 @@ import pytest
 from cmudrive.bench import RouteSpec
 from cmudrive.bench.scenarios.base import Scenario
 from cmudrive.maps import RoadMap, load_map
+from cmudrive.sim.traffic_lights import YELLOW_TIME
 from tests.scenario_helpers import path_cav, run, scenario, track, trigger
 
 SCENES = [
@@ -87,7 +88,8 @@ def test_turn_flow_comes_from_the_named_approach(
         ego = [str(log.tls_state(i)[light])[k] for i in range(log.num_ticks)]
         tick = round(act / 0.05) - 1
         red = min(tick + 100, round(end / 0.05) - 1)
-        assert set(ego[tick + 1 : red]) == {"r"}  # 5 s red for CAV 0 ...
+        yellow = tick + round(YELLOW_TIME / 0.05)  # (yellow first where the light was green)
+        assert set(ego[yellow + 1 : red]) == {"r"} and set(ego[tick + 1 : red]) <= {"r", "y"}  # 5 s red ...
         assert set(ego[tick + 101 : round(end / 0.05) - 1]) <= {"G"}  # ... then green
     # the end: CAV 0 10 m past the junction
     route = spec.dense_routes(m)[0]

@@ -10,7 +10,7 @@ import pytest
 
 from cmudrive.maps import LaneKind, LanePos, RoadMap, RoutePlanner
 from cmudrive.sim import ControlError, Controls, Role, Snapshot, World, WorldConfig
-from cmudrive.sim.traffic_lights import RED_STATES
+from cmudrive.sim.traffic_lights import RED_STATES, YELLOW_TIME
 
 DT = 0.05  # [s]
 
@@ -69,10 +69,44 @@ def test_forced_red_light_stops_background_traffic(mini_net: Path, mini: RoadMap
         front = last.x[car] + 0.5 * last.length[car]
         assert last.speed[car] < 0.05
         assert 192.8 - 6.0 < front <= 192.8
-        assert all(set(str(s.tls_state[0])) == {"r"} for s in snaps)
+        # signals that were green show yellow for YELLOW_TIME, then every signal is red
+        yellow_ticks = round(YELLOW_TIME / world.dt)
+        assert all(set(str(s.tls_state[0])) <= {"r", "y"} for s in snaps[:yellow_ticks])
+        assert "y" in str(snaps[0].tls_state[0])
+        assert all(set(str(s.tls_state[0])) == {"r"} for s in snaps[yellow_ticks:])
         world.lights.release()
         snaps = drive(world, 1600, brake=1.0)  # the normal cycle resumes and lets it go
         assert "car" not in snaps[-1].ids or snaps[-1].x[snaps[-1].index_of("car")] > 200.0
+
+
+def test_forced_lights_go_through_yellow_from_green_to_red(mini_net: Path, mini: RoadMap) -> None:
+    """Forcing a green signal red, and releasing a forced green into a program phase where it is red, both
+    show yellow for YELLOW_TIME first; red to green switches at once."""
+    yellow_ticks = round(YELLOW_TIME / 0.05)
+    tls = int(mini.link_tls[mini.link_tls >= 0][0])
+    first_phase = str(mini.phase_state[mini.tls_phase_ptr[tls]])
+    links = np.flatnonzero(mini.link_tls == tls)
+    red = [k for k in links.tolist() if first_phase[mini.link_tls_index[k]] in RED_STATES]
+    lane = int(mini.link_from[red[0]])  # its signal is red in the program's first phase
+    index = int(mini.link_tls_index[red[0]])
+    with make_world(mini_net, mini) as world:
+        world.add_cav(route_from(mini, "CN_1", 100.0, "CN_1", 150.0))
+
+        def signals(ticks: int) -> list[str]:
+            return [str(s.tls_state[tls])[index] for s in drive(world, ticks)]
+
+        world.lights.force_lanes([lane], "G")
+        assert signals(1) == ["G"]  # red to green: at once
+        world.lights.force_lanes([lane], "r")
+        seen = signals(80)
+        assert seen[: yellow_ticks - 1] == ["y"] * (yellow_ticks - 1)
+        assert seen[yellow_ticks + 1 :] == ["r"] * (80 - yellow_ticks - 1)
+        world.lights.force_lanes([lane], "G")
+        assert signals(1) == ["G"]
+        world.lights.release()  # back to the first phase, where this signal is red
+        seen = signals(80)
+        assert seen[: yellow_ticks - 1] == ["y"] * (yellow_ticks - 1)
+        assert seen[yellow_ticks + 1 :] == ["r"] * (80 - yellow_ticks - 1)
 
 
 def test_scenario_car_runs_the_red_light_that_stops_background_traffic(mini_net: Path, mini: RoadMap) -> None:

@@ -116,7 +116,7 @@ class LaneFollowingAutopilot:
             snap.yaw,
             snap.length,
             snap.width,
-            ~snap.valid[None, :].repeat(len(cav_rows), axis=0),
+            snap.other_level(cav_rows) | ~snap.valid[None, :],
             HORIZON + 10.0,
         )
         gap = first.astype(float) - 0.5 * snap.length[cav_rows] - STOP_GAP

@@ -391,7 +391,7 @@ class RouteLog:
 
     def snapshot(self, tick: int) -> Snapshot:
         """The recorded actors of log tick ``tick`` as a :class:`Snapshot` (float32 precision). Fields the
-        log does not keep get defaults: ``accel`` 0, ``lane`` -1, ``valid`` True."""
+        log does not keep get defaults: ``accel`` 0, ``lane`` -1, ``z`` NaN (any level), ``valid`` True."""
         k = self._tick(tick)
         a = self.arrays
         lo, hi = int(a["tick_ptr"][k]), int(a["tick_ptr"][k + 1])
@@ -411,6 +411,7 @@ class RouteLog:
             length=a["actor_length"][idx].astype(np.float64),
             width=a["actor_width"][idx].astype(np.float64),
             lane=np.full(n, -1, np.int32),
+            z=np.full(n, np.nan),
             signals=a["signals"][lo:hi].copy(),
             valid=np.ones(n, bool),
             tls_state=self.tls_state(k),

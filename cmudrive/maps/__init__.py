@@ -10,6 +10,7 @@ Typical use::
 """
 
 from cmudrive.maps.cache import assets_dir, available_towns, load_map, load_scenery, resolve_map_path
+from cmudrive.maps.elevation import LEVEL_CLEARANCE, actor_elevation, other_level
 from cmudrive.maps.errors import MapError, NetconvertError, RouteError
 from cmudrive.maps.index import LaneIndex, LaneProjection, wrap_angle
 from cmudrive.maps.loader import read_sumo_net
@@ -18,6 +19,7 @@ from cmudrive.maps.routing import LanePos, RoadOption, Route, RoutePlanner, dens
 from cmudrive.maps.scenery import SceneryKind, StaticScenery
 
 __all__ = [
+    "LEVEL_CLEARANCE",
     "JunctionKind",
     "LaneIndex",
     "LaneKind",
@@ -34,11 +36,13 @@ __all__ = [
     "StaticScenery",
     "StopKind",
     "TurnDir",
+    "actor_elevation",
     "assets_dir",
     "available_towns",
     "densify",
     "load_map",
     "load_scenery",
+    "other_level",
     "read_sumo_net",
     "resolve_map_path",
     "wrap_angle",

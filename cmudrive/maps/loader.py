@@ -90,15 +90,18 @@ def _lane_kind(lane: Any, edge_function: str, lane_type: str) -> LaneKind:
     return LaneKind.SHOULDER
 
 
-def _polyline(shape: list[tuple[float, ...]]) -> tuple[np.ndarray, np.ndarray]:
-    xy = np.asarray([(p[0], p[1]) for p in shape], dtype=np.float64).reshape(-1, 2)
-    if len(xy) > 1:  # drop repeated points so every segment has a direction
-        keep = np.concatenate([[True], np.linalg.norm(np.diff(xy, axis=0), axis=1) > 1e-6])
-        xy = xy[keep]
-    if len(xy) == 1:
-        xy = np.vstack([xy, xy + np.array([1e-3, 0.0])])  # a 1 mm stub keeps one-point shapes usable
+def _polyline(shape: list[tuple[float, ...]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points (P, 2), arc length (P,) in the ground plane and elevation (P,) of a SUMO shape; points
+    without a z (the whole shape, in a flat network) are at 0 m."""
+    xyz = np.asarray([(p[0], p[1], p[2] if len(p) > 2 else 0.0) for p in shape], np.float64).reshape(-1, 3)
+    if len(xyz) > 1:  # drop repeated points so every segment has a direction
+        keep = np.concatenate([[True], np.linalg.norm(np.diff(xyz[:, :2], axis=0), axis=1) > 1e-6])
+        xyz = xyz[keep]
+    if len(xyz) == 1:
+        xyz = np.vstack([xyz, xyz + np.array([1e-3, 0.0, 0.0])])  # a 1 mm stub keeps one-point shapes usable
+    xy = xyz[:, :2].copy()
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
-    return xy, s
+    return xy, s, xyz[:, 2].copy()
 
 
 def _geometric_opposites(m: RoadMap) -> np.ndarray:
@@ -209,7 +212,7 @@ class _Builder:
         junction = np.full(n, NO_INDEX, np.int32)
         width = np.zeros(n)
         speed = np.zeros(n)
-        polylines, arclens = [], []
+        polylines, arclens, elevations = [], [], []
         for i, lane in enumerate(self.lanes):
             edge = lane.getEdge()
             function = edge.getFunction()
@@ -222,11 +225,12 @@ class _Builder:
                 junction[i] = self.node_idx.get(node_id, NO_INDEX)
             width[i] = lane.getWidth()
             speed[i] = lane.getSpeed()
-            xy, s = _polyline(lane.getShape())
+            xy, s, z = _polyline(lane.getShape3D())
             if not internal[i] and s[-1] < COLLAPSED_FRACTION * lane.getLength():
                 kind[i] = LaneKind.SHOULDER  # collapsed: see COLLAPSED_FRACTION
             polylines.append(xy)
             arclens.append(s)
+            elevations.append(z)
         ptr = np.zeros(n + 1, np.int64)
         ptr[1:] = np.cumsum([len(p) for p in polylines])
         return {
@@ -242,6 +246,7 @@ class _Builder:
             "lane_pt_ptr": ptr,
             "pt_xy": np.concatenate(polylines),
             "pt_s": np.concatenate(arclens),
+            "pt_z": np.concatenate(elevations),
         }
 
     def _links(self, arrays: dict[str, Any]) -> dict[str, np.ndarray]:

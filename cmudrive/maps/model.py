@@ -123,6 +123,7 @@ class RoadMap:
     lane_pt_ptr: np.ndarray  # (N+1,) int64, CSR into pt_xy / pt_s
     pt_xy: np.ndarray  # (P, 2) float64 centreline points [m]
     pt_s: np.ndarray  # (P,) float64 arc length of each point along its lane [m], 0 at the lane start
+    pt_z: np.ndarray  # (P,) float64 elevation of each point [m] (0 where the network has no z)
 
     # --- lane graph ---
     succ_ptr: np.ndarray  # (N+1,) int64, CSR into succ_lane / succ_link
@@ -221,6 +222,11 @@ class RoadMap:
     def polyline_s(self, lane: int) -> np.ndarray:
         """(n,) arc length of the centreline points of a lane [m]."""
         return self.pt_s[self.lane_pt_ptr[lane] : self.lane_pt_ptr[lane + 1]]
+
+    @cached_property
+    def has_elevation(self) -> bool:
+        """Whether some lane leaves the ground plane (CARLA's Town03-05 bridges and ramps)."""
+        return bool(np.any(np.abs(self.pt_z) > 0.5))
 
     def successors(self, lane: int) -> np.ndarray:
         return self.succ_lane[self.succ_ptr[lane] : self.succ_ptr[lane + 1]]

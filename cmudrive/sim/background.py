@@ -94,10 +94,11 @@ class BackgroundConfig:
     removal_margin: float = 30.0  # [m] actors beyond radius + margin from every active CAV are removed
     spawn_min_distance: float = 60.0  # [m] later spawns are at least this far from every active CAV
     fill_clearance: float = 15.0  # [m] the initial fill keeps this far from every CAV
-    # the initial fill leaves no vehicle behind a CAV (on its road: within fill_behind_width sideways)
-    # closer than it needs to stop from the lane's speed with fill_decel, plus fill_stop_gap: at tick 0
-    # the CAVs are not yet on SUMO's lanes, so SUMO's insertion check cannot see them, and a car inserted
-    # at the lane's speed 15 m behind a standing CAV on a highway ran into it within a second
+    # no spawn behind a CAV (on its road: within fill_behind_width sideways) closer than it needs to slow
+    # from the lane's speed to the CAV's with fill_decel, plus fill_stop_gap: at tick 0 the CAVs are not
+    # yet on SUMO's lanes, so SUMO's insertion check cannot see them, and a car inserted at the lane's
+    # speed 15 m behind a standing CAV on a highway ran into it within a second; later spawns (>= 60 m
+    # away) at 33 m/s behind a CAV pulling away from standstill on Town04's highway did the same
     fill_decel: float = 2.5  # [m/s^2]
     fill_stop_gap: float = 10.0  # [m]
     fill_behind_width: float = 8.0  # [m]
@@ -178,6 +179,7 @@ class _Cavs:
 
     xy: np.ndarray  # (C, 2) [m]
     yaw: np.ndarray  # (C,) [rad]
+    speed: np.ndarray  # (C,) [m/s]
 
 
 @dataclass
@@ -506,9 +508,8 @@ class BackgroundActivity:
             True,
             rng,
         )
-        if initial:
-            keep = ~self._behind_a_cav(pts, idx, cavs)
-            idx, dist = idx[keep], dist[keep]
+        keep = ~self._behind_a_cav(pts, idx, cavs)
+        idx, dist = idx[keep], dist[keep]
         types = rng.choice(len(self._types), size=want, p=self._type_p)
         counts = np.bincount(types, minlength=len(self._types))
         free = np.ones(len(idx), bool)
@@ -522,17 +523,22 @@ class BackgroundActivity:
                 self._add_vehicle(world, self._types[t], int(idx[j]), float(dist[j]), initial)
 
     def _behind_a_cav(self, pts: SpawnPoints, idx: np.ndarray, cavs: _Cavs) -> np.ndarray:
-        """(k,) spawn points ``idx`` from which a vehicle at the lane's speed could not stop before a CAV
-        ahead of it on its road (see ``fill_decel``)."""
+        """(k,) spawn points ``idx`` from which a vehicle at the lane's speed could not slow down to the
+        speed of a CAV ahead of it on its road before reaching it (see ``fill_decel``)."""
         cfg, m = self.config, self._need_world().map
         if len(idx) == 0 or len(cavs.xy) == 0:
             return np.zeros(len(idx), bool)
         rel = cavs.xy[None, :, :] - pts.xy[idx, None, :]  # (k, C, 2)
-        c, s = np.cos(pts.heading[idx])[:, None], np.sin(pts.heading[idx])[:, None]
+        # along the chord: the mean of the two headings, the chord's direction on a circular arc (the
+        # spawn point's heading alone put a car 32 m behind a CAV on Town04's curved highway 8.4 m "aside")
+        h_pt, h_cav = pts.heading[idx][:, None], cavs.yaw[None, :]
+        chord = np.arctan2(np.sin(h_pt) + np.sin(h_cav), np.cos(h_pt) + np.cos(h_cav))
+        c, s = np.cos(chord), np.sin(chord)
         along = rel[..., 0] * c + rel[..., 1] * s
         across = -rel[..., 0] * s + rel[..., 1] * c
         speed = m.lane_speed[pts.lane[idx]][:, None]
-        reach = speed**2 / (2.0 * cfg.fill_decel) + cfg.fill_stop_gap
+        closing = np.maximum(speed**2 - cavs.speed[None, :] ** 2, 0.0)
+        reach = closing / (2.0 * cfg.fill_decel) + cfg.fill_stop_gap
         same_way = np.cos(cavs.yaw[None, :] - pts.heading[idx][:, None]) > 0.5
         return ((along > 0.0) & (along < reach) & (np.abs(across) < cfg.fill_behind_width) & same_way).any(
             axis=1
@@ -804,7 +810,9 @@ class BackgroundActivity:
 def _active_cavs(world: World) -> _Cavs:
     rows = np.flatnonzero(world.cav_active)
     st = world.cav_state
-    return _Cavs(np.stack([st.x[rows], st.y[rows]], axis=1).reshape(-1, 2), st.yaw[rows].copy())
+    return _Cavs(
+        np.stack([st.x[rows], st.y[rows]], axis=1).reshape(-1, 2), st.yaw[rows].copy(), st.speed[rows].copy()
+    )
 
 
 def _build_scene(snap: Snapshot, world: World, pending: dict[str, _Pending], cavs: _Cavs) -> _Scene:

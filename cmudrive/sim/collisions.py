@@ -23,6 +23,9 @@ Conventions
 - ``point`` is the mean of the vertices of the overlap polygon (corners of each box that lie inside the
   other plus the crossings of their edges; a corner lying exactly on the other box's edge counts twice):
   an approximation of the centroid of the overlap region, exact for symmetric overlaps, always inside it.
+- Boxes are 2D; height enters only through the snapshot's elevation ``z``: two actors more than
+  ``LEVEL_CLEARANCE`` (3 m) apart in z never collide (a car on a bridge and one on the road below it,
+  ``cmudrive.maps.elevation``). An unknown elevation (NaN, off the network) collides on every level.
 - ``relative_speed`` is |v_a - v_b| with v = speed * (cos yaw, sin yaw) [m/s].
 - Events are ordered by ``a`` then ``b`` with ``a < b`` (indices into the snapshot).
 """
@@ -35,6 +38,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from cmudrive.maps.elevation import LEVEL_CLEARANCE
 from cmudrive.sim.snapshot import Snapshot
 
 TOUCH_TOLERANCE = 1e-9  # [m] penetration at or below this is contact without collision
@@ -85,7 +89,10 @@ def detect_collisions(snap: Snapshot, active: np.ndarray | None = None) -> Colli
     x, y, yaw, speed, length, width = (
         np.asarray(getattr(snap, f), np.float64) for f in ("x", "y", "yaw", "speed", "length", "width")
     )
-    bad, a, b, penetration, point, relative_speed = _collide(x, y, yaw, speed, length, width, active, valid)
+    z = np.asarray(snap.z, np.float64)
+    bad, a, b, penetration, point, relative_speed = _collide(
+        x, y, yaw, speed, length, width, z, active, valid
+    )
     if bad:
         # one sum finds any NaN or infinity among the valid rows (inf - inf is NaN too)
         rows = valid & ~np.isfinite(x + y + yaw + speed + 0.5 * length + 0.5 * width)
@@ -113,13 +120,15 @@ def _collide(
     speed: np.ndarray,
     length: np.ndarray,
     width: np.ndarray,
+    z: np.ndarray,
     active: np.ndarray,
     valid: np.ndarray,
 ) -> tuple[bool, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Overlapping pairs (a < b, sorted by a then b) of the boxes (centre x, y, heading yaw, length,
-    width; (A,) each) among the ``valid`` rows, at least one of them ``active``: whether a valid row has a
-    non-finite pose, extent or speed (then no pairs), indices a, b (E,), penetration (E,), contact point
-    (E, 2) and relative speed |v_a - v_b| (E,) with v = speed * (cos yaw, sin yaw).
+    width, elevation z; (A,) each) among the ``valid`` rows on the same level, at least one of them
+    ``active``: whether a valid row has a non-finite pose, extent or speed (then no pairs), indices a, b
+    (E,), penetration (E,), contact point (E, 2) and relative speed |v_a - v_b| (E,) with
+    v = speed * (cos yaw, sin yaw).
 
     Broad phase: rows sorted by x, each swept forward while the x gap is below the largest sum of two
     bounding-circle radii (half-diagonals); pairs whose circles intersect go to the SAT test."""
@@ -154,6 +163,8 @@ def _collide(
                 continue
             dx, dy = x[j] - x[i], y[j] - y[i]
             if dx * dx + dy * dy > (radius[i] + radius[j]) ** 2:
+                continue
+            if abs(z[i] - z[j]) > LEVEL_CLEARANCE:  # a bridge over the other's road (NaN: False)
                 continue
             lo, hi = min(i, j), max(i, j)
             pen = _sat_penetration(x, y, c, s, hl, hw, lo, hi)

@@ -20,6 +20,8 @@ from enum import IntEnum
 
 import numpy as np
 
+from cmudrive.maps.elevation import other_level
+
 
 class ActorKind(IntEnum):
     CAR = 0
@@ -66,6 +68,7 @@ class Snapshot:
     length: np.ndarray  # (A,) float64 bounding-box length [m]
     width: np.ndarray  # (A,) float64 bounding-box width [m]
     lane: np.ndarray  # (A,) int32 map lane index the actor is on, -1 when off the road network
+    z: np.ndarray  # (A,) float64 elevation of the actor's lane where it is [m], NaN off the network
     signals: np.ndarray  # (A,) int32 SUMO signal bit mask (blinkers, brake light, blue light)
     valid: np.ndarray  # (A,) bool, False for padding rows
     tls_state: np.ndarray  # (T,) str, current signal string of each traffic light of the map
@@ -83,6 +86,11 @@ class Snapshot:
     def siren(self) -> np.ndarray:
         """(A,) bool: the blue light / siren is on."""
         return (self.signals & SIGNAL_EMERGENCY_BLUE) != 0
+
+    def other_level(self, rows: np.ndarray) -> np.ndarray:
+        """(len(rows), A) bool: actor j is on another level than actor ``rows[i]`` (a bridge over its road:
+        more than ``LEVEL_CLEARANCE`` above or below); never for an unknown (NaN) elevation."""
+        return other_level(self.z[np.asarray(rows)][:, None], self.z[None, :])
 
     @property
     def brake_light(self) -> np.ndarray:
@@ -133,6 +141,7 @@ class Snapshot:
             "length": np.full(n, 4.5),
             "width": np.full(n, 1.9),
             "lane": np.full(n, -1, np.int32),
+            "z": np.zeros(n),
             "signals": np.zeros(n, np.int32),
             "valid": np.ones(n, bool),
         }

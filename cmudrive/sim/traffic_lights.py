@@ -3,6 +3,11 @@ states for scenarios (and release them back to the network's program).
 
 SUMO runs each light's program from the network; a forced state (``force``) holds until ``release``,
 which restores the program SUMO was running and its phase, so the normal cycle resumes.
+
+A forced switch never turns a green signal red at once: the signal shows yellow for ``YELLOW_TIME`` first
+(forcing and releasing alike), as a real controller and SUMO's own programs do. Without it a scenario
+could switch a CAV's light from green to red while it was 2-3 m from the line at 8 m/s, a red-light
+infraction no driver could avoid. ``update`` (called by the world every tick) ends the yellow intervals.
 Signal characters are SUMO's: ``r`` red, ``y`` yellow, ``g`` green (minor: yield), ``G`` green
 (priority), ``s`` green right-turn arrow after stopping, ``u`` red+yellow, ``o``/``O`` off.
 """
@@ -16,6 +21,7 @@ from cmudrive.maps.model import RoadMap
 NO_SIGNAL = "O"  # state reported for links without a traffic light
 RED_STATES = frozenset("ru")  # a vehicle must not pass
 GREEN_STATES = frozenset("gGs")
+YELLOW_TIME = 3.0  # [s] yellow between a forced green and red (SUMO's default yellow duration)
 
 
 class TrafficLights:
@@ -28,6 +34,9 @@ class TrafficLights:
         self._forced: dict[str, tuple[str, int, float, float]] = {}
         self._last_states: list[str] | None = None
         self._last_array = np.zeros(0, dtype=str)
+        # tls -> (the state it goes to, per signal the time its yellow ends, inf: not yellow)
+        self._target: dict[str, tuple[str, np.ndarray]] = {}
+        self._release_at: dict[str, float] = {}  # tls -> when a release waiting for its yellow happens
 
     def read(self) -> np.ndarray:
         """(T,) current signal string of each light, in map order. Lights change every few seconds, so
@@ -48,7 +57,8 @@ class TrafficLights:
         return link_states(self.map, tls_state)
 
     def force(self, tls_id: str, state: str) -> None:
-        """Hold ``tls_id`` at ``state`` (one character per signal index) until :meth:`release`."""
+        """Hold ``tls_id`` at ``state`` (one character per signal index) until :meth:`release`; signals
+        going from green to red show yellow for ``YELLOW_TIME`` first."""
         import libsumo
 
         current = libsumo.trafficlight.getRedYellowGreenState(tls_id)
@@ -56,15 +66,59 @@ class TrafficLights:
             raise ValueError(
                 f"traffic light {tls_id}: state {state!r} has {len(state)} signals, expected {len(current)}"
             )
+        now = libsumo.simulation.getTime()
         if tls_id not in self._forced:
-            now = libsumo.simulation.getTime()
             self._forced[tls_id] = (
                 libsumo.trafficlight.getProgram(tls_id),
                 libsumo.trafficlight.getPhase(tls_id),
                 libsumo.trafficlight.getNextSwitch(tls_id) - now,
                 now,
             )
-        libsumo.trafficlight.setRedYellowGreenState(tls_id, state)
+        self._release_at.pop(tls_id, None)  # forced again before a pending release happened
+        self._switch(tls_id, current, state, now)
+
+    def _switch(self, tls_id: str, current: str, state: str, now: float) -> None:
+        """Show ``state``, with yellow first where a green signal turns red (or stays yellow where an
+        earlier yellow has not ended and the signal still goes red)."""
+        import libsumo
+
+        _, due = self._target.get(tls_id, ("", np.full(len(state), np.inf)))
+        due = due.copy()
+        shown = list(state)
+        for k, (cur, new) in enumerate(zip(current, state, strict=True)):
+            if new not in RED_STATES:
+                due[k] = np.inf
+            elif cur in GREEN_STATES:
+                due[k] = now + YELLOW_TIME
+            if np.isfinite(due[k]):
+                shown[k] = "y"
+        if np.isfinite(due).any():
+            self._target[tls_id] = (state, due)
+        else:
+            self._target.pop(tls_id, None)
+        libsumo.trafficlight.setRedYellowGreenState(tls_id, "".join(shown))
+
+    def update(self) -> None:
+        """End the yellow intervals that are over (and the releases that waited for them); every tick."""
+        if not self._target and not self._release_at:
+            return
+        import libsumo
+
+        now = libsumo.simulation.getTime() + 1e-9
+        for tls_id in [t for t, at in self._release_at.items() if at <= now]:
+            del self._release_at[tls_id]
+            self._target.pop(tls_id, None)
+            self._restore(tls_id)
+        for tls_id, (state, due) in list(self._target.items()):
+            if tls_id in self._release_at or not (due <= now).any():
+                continue
+            current = libsumo.trafficlight.getRedYellowGreenState(tls_id)
+            shown = "".join(state[k] if due[k] <= now else c for k, c in enumerate(current))
+            if (due <= now).all():
+                del self._target[tls_id]
+            else:
+                due[due <= now] = np.inf
+            libsumo.trafficlight.setRedYellowGreenState(tls_id, shown)
 
     def force_lanes(self, lanes: list[int] | np.ndarray, char: str, others: str | None = None) -> list[str]:
         """Set every signal of links leaving ``lanes`` (map lane indices) to ``char``; with ``others``, set
@@ -85,20 +139,48 @@ class TrafficLights:
         return [self.ids[t] for t in touched]
 
     def release(self, tls_id: str | None = None) -> None:
-        """Give ``tls_id`` (default: every forced light) back to its program, at the phase it was in."""
+        """Give ``tls_id`` (default: every forced light) back to its program, at the phase it was in; where
+        that turns a green signal red, after ``YELLOW_TIME`` of yellow (a no-op while that runs)."""
         import libsumo
 
+        now = libsumo.simulation.getTime()
         for tls in [tls_id] if tls_id else list(self._forced):
-            if tls not in self._forced:
+            if tls not in self._forced or tls in self._release_at:
                 continue
-            program, phase, left, since = self._forced.pop(tls)
-            libsumo.trafficlight.setProgram(tls, program)
-            libsumo.trafficlight.setPhase(tls, phase)
-            # the phase goes on for what it had left minus the time it was overridden (at least 1 s):
-            # restarting it in full kept the other approaches red ~40 s longer, long enough for a
-            # CAV waiting there to count as blocked
-            elapsed = libsumo.simulation.getTime() - since
-            libsumo.trafficlight.setPhaseDuration(tls, max(left - elapsed, 1.0))
+            program, phase = self._forced[tls][:2]
+            resumed = _phase_state(tls, program, phase)
+            current = libsumo.trafficlight.getRedYellowGreenState(tls)
+            if resumed is not None and len(resumed) == len(current):
+                self._switch(tls, current, resumed, now)  # yellow where the program turns a green red
+            pending = self._target.get(tls)
+            until = float(pending[1][np.isfinite(pending[1])].max()) if pending else now
+            if until > now:
+                self._release_at[tls] = until
+            else:
+                self._target.pop(tls, None)
+                self._restore(tls)
+
+    def _restore(self, tls: str) -> None:
+        import libsumo
+
+        program, phase, left, since = self._forced.pop(tls)
+        libsumo.trafficlight.setProgram(tls, program)
+        libsumo.trafficlight.setPhase(tls, phase)
+        # the phase goes on for what it had left minus the time it was overridden (at least 1 s):
+        # restarting it in full kept the other approaches red ~40 s longer, long enough for a
+        # CAV waiting there to count as blocked
+        elapsed = libsumo.simulation.getTime() - since
+        libsumo.trafficlight.setPhaseDuration(tls, max(left - elapsed, 1.0))
+
+
+def _phase_state(tls: str, program: str, phase: int) -> str | None:
+    """The signal string of ``phase`` of ``program`` of light ``tls`` (None when SUMO has no such phase)."""
+    import libsumo
+
+    for logic in libsumo.trafficlight.getAllProgramLogics(tls):
+        if logic.programID == program and 0 <= phase < len(logic.phases):
+            return str(logic.phases[phase].state)
+    return None
 
 
 def link_state(road_map: RoadMap, tls_state: np.ndarray, link: int) -> str:

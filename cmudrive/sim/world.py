@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING
 import numba
 import numpy as np
 
-from cmudrive.maps import RoadMap, Route, load_map, resolve_map_path
+from cmudrive.maps import RoadMap, Route, actor_elevation, load_map, resolve_map_path
 from cmudrive.sim.actor_types import ACTOR_TYPES, actor_type
 from cmudrive.sim.collisions import CollisionEvents, detect_collisions
 from cmudrive.sim.dynamics import CavState, Controls, VehicleParams, step_bicycle, validate_controls
@@ -329,6 +329,7 @@ class World:
         self.cav_clipped[slice(None) if every else active] += check.clipped
         self._advance_cavs(active, check.controls)
         self._push_layer()
+        self.lights.update()
         t1 = perf_counter()
         arrived = self.sumo.step()
         if not arrived.isdisjoint(self._cav_in_sumo):
@@ -411,6 +412,9 @@ class World:
         cav_lane = np.where(self._cav_off_road[rows], np.int32(-1), sumo.extra_lane)
         fixed = self._fixed_columns(cav, cav_ids, sumo)
         n_c, n_l = len(cav), len(L.ids)
+        x = np.concatenate([st.x[rows], L.x, sumo.x])
+        y = np.concatenate([st.y[rows], L.y, sumo.y])
+        lane = np.concatenate([cav_lane, layer_lane, sumo.lane]).astype(np.int32, copy=False)
         cav_signals = np.where(self._cav_brake[rows] > BRAKE_LIGHT_THRESHOLD, _BRAKELIGHT, np.int32(0))
         signals = np.concatenate([cav_signals, np.zeros(n_l, np.int32), sumo.signals])
         if self._held:  # SUMO actors waiting after a collision show hazard lights
@@ -423,14 +427,15 @@ class World:
             ids=fixed.ids,
             kind=fixed.kind,
             role=fixed.role,
-            x=np.concatenate([st.x[rows], L.x, sumo.x]),
-            y=np.concatenate([st.y[rows], L.y, sumo.y]),
+            x=x,
+            y=y,
             yaw=np.concatenate([st.yaw[rows], L.yaw, sumo.yaw]),
             speed=np.concatenate([st.speed[rows], L.speed, sumo.speed]),
             accel=np.concatenate([st.accel[rows], np.zeros(n_l), sumo.accel]),
             length=fixed.length,
             width=fixed.width,
-            lane=np.concatenate([cav_lane, layer_lane, sumo.lane]).astype(np.int32, copy=False),
+            lane=lane,
+            z=actor_elevation(m, lane, x, y),
             signals=signals,
             valid=fixed.valid,
             tls_state=self.lights.read(),

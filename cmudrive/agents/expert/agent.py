@@ -185,7 +185,7 @@ class ExpertAgent(Agent):
             obj_dist[better] = dist[better]
 
         # 1. the first actor in the corridor
-        skip = np.zeros((n, snap.num_actors), bool)
+        skip = snap.other_level(rows)  # bridges over the CAV's road and roads under its bridge
         skip[:, ~snap.valid] = True
         hit, hit_row = first_in_corridor(
             path,

@@ -48,7 +48,7 @@ from enum import IntEnum
 import numba
 import numpy as np
 
-from cmudrive.maps import RoadMap, Route
+from cmudrive.maps import RoadMap, Route, other_level
 from cmudrive.maps.model import NO_INDEX, LaneKind
 from cmudrive.sim.snapshot import ActorKind, Role, Snapshot
 
@@ -306,6 +306,8 @@ class DetourPlanner:
         cav, row, k = _near_route_points(
             self.xy, cav_index, k_ego, cav_rows, snap.x, snap.y, snap.valid, reach, back, fwd
         )
+        same = ~other_level(snap.z[cav_rows[cav]], snap.z[row])  # not on a bridge over it or a road under
+        cav, row, k = cav[same], row[same], k[same]
         i = cav_index[cav]
         hd = self.heading[i, k]
         rel_x, rel_y = snap.x[row] - self.xy[i, k, 0], snap.y[row] - self.xy[i, k, 1]

@@ -42,6 +42,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from cmudrive.maps.elevation import LEVEL_CLEARANCE
 from cmudrive.sim.collisions import TOUCH_TOLERANCE, _box_overlap, _contact_point
 from cmudrive.sim.snapshot import ActorKind, Snapshot
 
@@ -218,6 +219,7 @@ def forecast(
         width,
         np.asarray(snap.kind) == ActorKind.PEDESTRIAN,
         np.asarray(snap.valid, bool),
+        np.asarray(snap.z, np.float64),
         yaw_rate,
         rows,
         paths,
@@ -396,6 +398,7 @@ def _forecast(
     width: np.ndarray,
     walker: np.ndarray,
     valid: np.ndarray,
+    z: np.ndarray,
     yaw_rate: np.ndarray,
     cav_rows: np.ndarray,
     paths: np.ndarray,
@@ -445,8 +448,8 @@ def _forecast(
         e_reach += e_radius
         cy, sy, rear = math.cos(yaw[r]), math.sin(yaw[r]), -0.5 * length[r]
         for j in range(a):
-            if not valid[j] or j == r:
-                continue
+            if not valid[j] or j == r or abs(z[j] - z[r]) > LEVEL_CLEARANCE:
+                continue  # (a bridge over the ego's road, or under it)
             dx, dy = x[j] - x[r], y[j] - y[r]
             behind[i, j] = dx * cy + dy * sy < rear
             if dx * dx + dy * dy > radius * radius:

@@ -1,0 +1,402 @@
+"""V2V-VLA: SimLingo's model (InternVL2: InternViT + MLP projector + Qwen2, LoRA on the LLM) with the
+merged-BEV image, the other CAVs in the prompt and a communication sentence (the paper, Sec. 4).
+
+Reads top to bottom:
+
+1. the backbone: ``transformers.InternVLForConditionalGeneration`` (vision tower, pixel-shuffle +
+   ``InternVLMultiModalProjector``, ``Qwen2Model`` language model, LM head), randomly initialised from
+   the config's sizes or read with ``from_pretrained`` from a local directory; peft LoRA on the LLM;
+2. the driving heads: the target-point MLP and the waypoint heads (per-step deltas, summed);
+3. :class:`V2VVLA`: embedding (tokens, image features, target points, waypoint queries), one pass of
+   the language model, the loss (smooth-L1 waypoints + answer-only cross-entropy), ``predict`` (greedy
+   text, then the waypoint queries on the KV cache) and ``save_pretrained``/``from_pretrained``.
+
+Shapes: B rows, L prompt(+answer) tokens, Q = n_path + n_speed waypoint queries, H the LLM hidden size,
+V the vocabulary, N = n_images tiles per row of side S, T visual tokens per tile.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, cast
+
+import torch
+import torch.nn.functional as F
+from peft import LoraConfig, inject_adapter_in_model
+from safetensors.torch import load_model, save_model
+from torch import nn
+from transformers import (
+    InternVLConfig,
+    InternVLForConditionalGeneration,
+    InternVLVisionConfig,
+    PreTrainedTokenizerBase,
+    Qwen2Config,
+)
+from transformers.utils import ModelOutput
+
+from cmudrive.model.config import ModelConfig
+from cmudrive.model.processor import IGNORE_INDEX, VLABatch, VLAProcessor, parse_partner
+from cmudrive.model.tokenizer import IMG_CONTEXT, load_tokenizer
+
+FORMAT_VERSION = 1
+WEIGHTS_FILE = "model.safetensors"
+CONFIG_FILE = "vla_config.json"
+BACKBONE_DIR = "backbone"  # the InternVL config (config.json) of the backbone
+TOKENIZER_DIR = "tokenizer"
+
+
+# ---- 1. backbone ------------------------------------------------------------------------------------
+def backbone_config(config: ModelConfig, tokenizer: PreTrainedTokenizerBase) -> InternVLConfig:
+    """The InternVL config of a randomly initialised backbone of ``config``'s sizes."""
+    assert config.vision is not None and config.text is not None
+    v, t = config.vision, config.text
+    vision = InternVLVisionConfig(
+        hidden_size=v.hidden_size,
+        num_hidden_layers=v.num_layers,
+        num_attention_heads=v.num_heads,
+        intermediate_size=v.intermediate_size,
+        image_size=v.image_size,
+        patch_size=v.patch_size,
+    )
+    text = Qwen2Config(
+        vocab_size=len(tokenizer),
+        hidden_size=t.hidden_size,
+        intermediate_size=t.intermediate_size,
+        num_hidden_layers=t.num_layers,
+        num_attention_heads=t.num_heads,
+        num_key_value_heads=t.num_kv_heads,
+        max_position_embeddings=t.max_position_embeddings,
+        rope_parameters={"rope_type": "default", "rope_theta": t.rope_theta},
+        pad_token_id=tokenizer.pad_token_id,
+        eos_token_id=tokenizer.eos_token_id,
+    )
+    return InternVLConfig(
+        vision_config=vision,
+        text_config=text,
+        image_token_id=token_id(tokenizer, IMG_CONTEXT),
+        image_seq_length=(v.image_size // v.patch_size) ** 2 // 4,
+        downsample_ratio=0.5,
+    )
+
+
+def token_id(tokenizer: PreTrainedTokenizerBase, token: str) -> int:
+    return int(tokenizer.get_vocab()[token])
+
+
+def build_backbone(
+    config: ModelConfig, tokenizer: PreTrainedTokenizerBase
+) -> InternVLForConditionalGeneration:
+    """Random backbone of the config's sizes, or the pretrained one in ``config.pretrained_path``."""
+    if config.pretrained_path is None:
+        backbone = InternVLForConditionalGeneration(backbone_config(config, tokenizer))
+        backbone.set_attn_implementation(config.attn_implementation)
+        return backbone
+    backbone = InternVLForConditionalGeneration.from_pretrained(
+        config.pretrained_path, dtype=torch.float32, attn_implementation=config.attn_implementation
+    )
+    if backbone.config.image_token_id != token_id(tokenizer, IMG_CONTEXT):
+        raise ValueError(
+            f"{config.pretrained_path}: the config's image_token_id is not the tokenizer's {IMG_CONTEXT}"
+        )
+    if len(tokenizer) > cast(Qwen2Config, backbone.config.text_config).vocab_size:  # <TARGET_POINT> added
+        backbone.resize_token_embeddings(len(tokenizer))
+    return backbone
+
+
+def add_lora(config: ModelConfig, backbone: InternVLForConditionalGeneration) -> None:
+    """LoRA adapters on the language model's linear layers (not the vision tower, not the LM head)."""
+    if config.llm_training != "lora":
+        return
+    s = config.lora
+    targets = s.target_modules if isinstance(s.target_modules, str) else list(s.target_modules)
+    lora = LoraConfig(r=s.r, lora_alpha=s.alpha, lora_dropout=s.dropout, target_modules=targets)
+    inject_adapter_in_model(lora, backbone.model.language_model)
+
+
+# ---- 2. driving heads -------------------------------------------------------------------------------
+class TargetPointEncoder(nn.Module):
+    """MLP (x, y) -> LLM embedding, 2 -> hidden[0] -> ... -> H with ReLU (SimLingo: 2 -> 256 -> 512 -> H)."""
+
+    def __init__(self, hidden: tuple[int, ...], out_size: int, scale: float) -> None:
+        super().__init__()
+        sizes = [2, *hidden]
+        layers: list[nn.Module] = []
+        for a, b in itertools.pairwise(sizes):
+            layers += [nn.Linear(a, b), nn.ReLU()]
+        self.mlp = nn.Sequential(*layers, nn.Linear(sizes[-1], out_size))
+        self.scale = scale  # [m]
+
+    def forward(self, points: torch.Tensor) -> torch.Tensor:
+        return self.mlp(points / self.scale)  # (B, 2, 2) [m] -> (B, 2, H)
+
+
+class WaypointHead(nn.Module):
+    """Query hidden states -> per-step (dx, dy) -> cumulative sum: waypoints in the ego frame [m]."""
+
+    def __init__(self, in_size: int, hidden: int) -> None:
+        super().__init__()
+        self.mlp = nn.Sequential(nn.Linear(in_size, hidden), nn.ReLU(), nn.Linear(hidden, 2))
+
+    def forward(self, states: torch.Tensor) -> torch.Tensor:
+        return self.mlp(states).cumsum(dim=1)  # (B, n, H) -> (B, n, 2)
+
+
+# ---- 3. the model -----------------------------------------------------------------------------------
+@dataclass
+class VLAOutput(ModelOutput):
+    """``loss = lm_loss + waypoint_loss`` (present when the batch has targets)."""
+
+    loss: torch.Tensor | None = None
+    lm_loss: torch.Tensor | None = None  # mean cross-entropy over answer tokens
+    waypoint_loss: torch.Tensor | None = None  # smooth-L1 path + smooth-L1 speed waypoints
+    logits: torch.Tensor | None = None  # (B, L, V)
+    path: torch.Tensor | None = None  # (B, n_path, 2) [m]
+    speed_waypoints: torch.Tensor | None = None  # (B, n_speed, 2) [m]
+
+
+@dataclass
+class VLAPrediction:
+    """What the closed loop reads, one entry per row."""
+
+    path: torch.Tensor  # (B, n_path, 2) [m], ego frame
+    speed_waypoints: torch.Tensor  # (B, n_speed, 2) [m], ego frame, 0.25 s apart
+    text: list[str]  # generated commentary (+ communication sentence)
+    partner: list[int]  # CAV named in the communication sentence, -1 for none (always -1 for the baseline)
+    answer_ids: list[list[int]]  # the answer tokens the queries followed, </s> included
+
+
+def answer_loss(logits: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:
+    """Mean next-token cross-entropy over positions whose label is not IGNORE_INDEX (0 when none)."""
+    targets = labels[:, 1:]  # (B, L-1): token t+1 is predicted at position t
+    if not (targets != IGNORE_INDEX).any():
+        return logits.sum() * 0.0
+    return F.cross_entropy(logits[:, :-1].flatten(0, 1), targets.flatten(), ignore_index=IGNORE_INDEX)
+
+
+def positions(mask: torch.Tensor) -> torch.Tensor:
+    """(B, L) position ids that skip left padding."""
+    return (mask.cumsum(-1) - 1).clamp(min=0)
+
+
+class V2VVLA(nn.Module):
+    """V2V-VLA (``config.cooperative``) or the non-cooperative SimLingo-style baseline."""
+
+    def __init__(
+        self,
+        config: ModelConfig,
+        backbone: InternVLForConditionalGeneration,
+        tokenizer: PreTrainedTokenizerBase,
+    ) -> None:
+        super().__init__()
+        self.config = config
+        self.backbone = backbone
+        add_lora(config, backbone)
+        vision = cast(InternVLVisionConfig, backbone.config.vision_config)
+        side = vision.image_size if isinstance(vision.image_size, int) else vision.image_size[0]
+        self.processor = VLAProcessor(config, tokenizer, side, int(backbone.config.image_seq_length))
+        hidden = cast(Qwen2Config, backbone.config.text_config).hidden_size
+        self.target_point_encoder = TargetPointEncoder(
+            config.target_point_hidden, hidden, config.target_point_scale
+        )
+        n_queries = config.n_path + config.n_speed
+        self.waypoint_queries = nn.Parameter(torch.randn(n_queries, hidden) * 0.02)  # (Q, H)
+        self.path_head = WaypointHead(hidden, config.waypoint_head_hidden)
+        self.speed_head = WaypointHead(hidden, config.waypoint_head_hidden)
+        self._set_trainable()
+        self.train()  # from_pretrained leaves the backbone in eval mode; a new module trains
+
+    @classmethod
+    def from_config(cls, config: ModelConfig) -> V2VVLA:
+        """A new model: random backbone of the config's sizes, or the pretrained one (``pretrained_path``)."""
+        tokenizer = load_tokenizer(config.tokenizer_path or config.pretrained_path)
+        return cls(config, build_backbone(config, tokenizer), tokenizer)
+
+    def _set_trainable(self) -> None:
+        """Everything trains except the LLM base weights under "lora"/"frozen" (embeddings per config)."""
+        for p in self.parameters():
+            p.requires_grad_(True)
+        if self.config.llm_training == "full":
+            return
+        for name, p in self.backbone.model.language_model.named_parameters():
+            p.requires_grad_("lora_" in name)
+        emb = self.config.train_embeddings
+        self.backbone.get_input_embeddings().weight.requires_grad_(emb)
+        self.backbone.lm_head.weight.requires_grad_(emb)  # the same tensor when tied
+
+    @property
+    def tokenizer(self) -> PreTrainedTokenizerBase:
+        return self.processor.tokenizer
+
+    # ---- embedding ----------------------------------------------------------------------------------
+    def embed(self, batch: VLABatch) -> torch.Tensor:
+        """(B, L, H): token embeddings with image features and target-point embeddings scattered in."""
+        ids = batch.input_ids  # (B, L)
+        embeds = self.backbone.get_input_embeddings()(ids)  # (B, L, H)
+        tiles = batch.pixel_values.flatten(0, 1).to(embeds.dtype)  # (B*N, 3, S, S)
+        image = self.backbone.model.get_image_features(pixel_values=tiles).pooler_output  # (B*N, T, H)
+        image_mask = (ids == self.processor.image_token_id).unsqueeze(-1)  # (B, L, 1), B*N*T of them
+        if int(image_mask.sum()) != image.shape[0] * image.shape[1]:
+            raise ValueError(
+                f"{int(image_mask.sum())} image tokens for {image.shape[0]} tiles of {image.shape[1]}"
+            )
+        embeds = embeds.masked_scatter(image_mask, image.to(embeds.dtype))
+        points = self.target_point_encoder(batch.target_points.to(embeds.dtype))  # (B, 2, H)
+        point_mask = (ids == self.processor.target_point_token_id).unsqueeze(-1)  # (B, L, 1), 2 per row
+        return embeds.masked_scatter(point_mask, points)
+
+    def queries(self, batch_size: int) -> torch.Tensor:
+        return self.waypoint_queries.unsqueeze(0).expand(batch_size, -1, -1)  # (B, Q, H)
+
+    def waypoints(self, query_states: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(B, Q, H) -> path (B, n_path, 2), speed waypoints (B, n_speed, 2)."""
+        n = self.config.n_path
+        return self.path_head(query_states[:, :n]), self.speed_head(query_states[:, n:])
+
+    # ---- training forward ---------------------------------------------------------------------------
+    def forward(self, batch: VLABatch) -> VLAOutput:
+        """One pass over prompt + answer + waypoint queries (teacher forcing)."""
+        b, length = batch.input_ids.shape
+        embeds = torch.cat([self.embed(batch), self.queries(b)], dim=1)  # (B, L+Q, H)
+        ones = batch.attention_mask.new_ones(b, self.waypoint_queries.shape[0])
+        mask = torch.cat([batch.attention_mask, ones], dim=1)  # (B, L+Q)
+        lm = self.backbone.model.language_model
+        states = lm(inputs_embeds=embeds, attention_mask=mask, position_ids=positions(mask)).last_hidden_state
+        logits = self.backbone.lm_head(states[:, :length])  # (B, L, V)
+        path, speed = self.waypoints(states[:, length:])  # (B, n_path, 2), (B, n_speed, 2)
+        out = VLAOutput(logits=logits, path=path, speed_waypoints=speed)
+        if batch.labels is not None and batch.path is not None and batch.speed_waypoints is not None:
+            out.lm_loss = answer_loss(logits, batch.labels)
+            out.waypoint_loss = F.smooth_l1_loss(path, batch.path) + F.smooth_l1_loss(
+                speed, batch.speed_waypoints
+            )
+            out.loss = out.lm_loss + out.waypoint_loss
+        return out
+
+    # ---- closed-loop inference ----------------------------------------------------------------------
+    @torch.no_grad()
+    def predict(
+        self, batch: VLABatch | list[dict[str, Any]], max_new_tokens: int | None = None
+    ) -> VLAPrediction:
+        """Greedy text (until ``</s>`` or ``max_new_tokens``, default ``config.max_answer_tokens``), then
+        the waypoint queries after it in the same KV cache: the layout the model was trained on. All CAVs
+        of a tick go in one batch. ``max_new_tokens=0`` skips the text (queries right after ``</s>``)."""
+        was_training = self.training
+        self.eval()
+        try:
+            return self._predict(
+                batch, self.config.max_answer_tokens if max_new_tokens is None else max_new_tokens
+            )
+        finally:
+            self.train(was_training)
+
+    def _predict(self, batch: VLABatch | list[dict[str, Any]], max_new_tokens: int) -> VLAPrediction:
+        device = self.waypoint_queries.device
+        batch = (self.processor(batch, with_answer=False) if isinstance(batch, list) else batch).to(device)
+        if batch.labels is not None:
+            raise ValueError("predict takes prompts: batch the rows with processor(rows, with_answer=False)")
+        b, q = len(batch), self.waypoint_queries.shape[0]
+        answer, keep, cache, mask = self._greedy(batch, max_new_tokens)  # (B, n), (B, n), cache, (B, L+n)
+        mask = torch.cat([mask, mask.new_ones(b, q)], dim=1)  # (B, L+n+Q)
+        lm = self.backbone.model.language_model
+        states = lm(
+            inputs_embeds=self.queries(b),
+            attention_mask=mask,
+            position_ids=positions(mask)[:, -q:],
+            past_key_values=cache,
+        ).last_hidden_state  # (B, Q, H)
+        path, speed = self.waypoints(states)
+        answer_ids = [row[k].tolist() for row, k in zip(answer.cpu(), keep.cpu(), strict=True)]
+        text = [str(self.tokenizer.decode(a, skip_special_tokens=True)).strip() for a in answer_ids]
+        partner = [parse_partner(t) if self.config.cooperative else -1 for t in text]
+        return VLAPrediction(
+            path=path, speed_waypoints=speed, text=text, partner=partner, answer_ids=answer_ids
+        )
+
+    def _greedy(
+        self, batch: VLABatch, max_new_tokens: int
+    ) -> tuple[torch.Tensor, torch.Tensor, Any, torch.Tensor]:
+        """Prefill the prompt, then decode greedily, feeding each token at once. Returns the answer ids
+        (B, n) (pad after a row's ``</s>``; ``</s>`` forced after ``max_new_tokens``), which of them belong
+        to the answer (B, n) bool, the KV cache of prompt + answer, and its attention mask (B, L+n)."""
+        lm, head = self.backbone.model.language_model, self.backbone.lm_head
+        embed = self.backbone.get_input_embeddings()
+        eos, pad = self.processor.eos_token_id, self.processor.pad_token_id
+        mask = batch.attention_mask  # (B, L), grows by one column per step
+        out = lm(
+            inputs_embeds=self.embed(batch), attention_mask=mask, position_ids=positions(mask), use_cache=True
+        )
+        cache = out.past_key_values
+        alive = torch.ones(len(batch), dtype=torch.bool, device=mask.device)  # no </s> yet
+        tokens, keep = [], []
+        for step in range(max_new_tokens + 1):
+            logits = head(out.last_hidden_state[:, -1])  # (B, V)
+            best = (
+                logits.argmax(-1) if step < max_new_tokens else torch.full_like(alive, eos, dtype=torch.long)
+            )
+            token = torch.where(alive, best, pad)  # (B,)
+            tokens.append(token)
+            keep.append(alive.clone())
+            mask = torch.cat([mask, alive.long()[:, None]], dim=1)
+            alive = alive & (token != eos)
+            out = lm(
+                inputs_embeds=embed(token[:, None]),
+                attention_mask=mask,
+                position_ids=positions(mask)[:, -1:],
+                past_key_values=cache,
+                use_cache=True,
+            )
+            if not alive.any():
+                break
+        return torch.stack(tokens, dim=1), torch.stack(keep, dim=1), cache, mask
+
+    # ---- persistence ----------------------------------------------------------------------------------
+    def save_pretrained(self, directory: str | Path) -> None:
+        """``vla_config.json``, ``backbone/config.json``, ``tokenizer/``, ``model.safetensors`` (all weights:
+        backbone, LoRA adapters, heads); loading needs nothing else."""
+        out = Path(directory)
+        out.mkdir(parents=True, exist_ok=True)
+        meta = {"format_version": FORMAT_VERSION, "config": self.config.to_dict()}
+        (out / CONFIG_FILE).write_text(json.dumps(meta, indent=2) + "\n")
+        self.backbone.config.save_pretrained(str(out / BACKBONE_DIR))
+        self.tokenizer.save_pretrained(str(out / TOKENIZER_DIR))
+        save_model(self, str(out / WEIGHTS_FILE))
+
+    @classmethod
+    def from_pretrained(cls, directory: str | Path, device: torch.device | str = "cpu") -> V2VVLA:
+        """A model saved by :meth:`save_pretrained` (never the base InternVL directory: use
+        :meth:`from_config` with ``pretrained_path`` for that)."""
+        src = Path(directory)
+        meta = json.loads((src / CONFIG_FILE).read_text())
+        if meta.get("format_version") != FORMAT_VERSION:
+            raise ValueError(f"{src}: format_version {meta.get('format_version')}, expected {FORMAT_VERSION}")
+        config = ModelConfig.from_dict(meta["config"])
+        backbone = InternVLForConditionalGeneration(InternVLConfig.from_pretrained(str(src / BACKBONE_DIR)))
+        backbone.set_attn_implementation(config.attn_implementation)
+        model = cls(config, backbone, load_tokenizer(src / TOKENIZER_DIR))
+        load_model(model, str(src / WEIGHTS_FILE), strict=True, device=str(device))
+        return model.to(device)
+
+    def parameter_counts(self) -> dict[str, int]:
+        """Parameters per part (tied embeddings counted once)."""
+
+        def count(module: nn.Module) -> int:
+            return sum(p.numel() for p in module.parameters())
+
+        lm = self.backbone.model.language_model
+        lora = sum(p.numel() for n, p in lm.named_parameters() if "lora_" in n)
+        heads = count(self.target_point_encoder) + count(self.path_head) + count(self.speed_head)
+        head = self.backbone.lm_head.weight
+        untied = head is not self.backbone.get_input_embeddings().weight
+        return {
+            "vision": count(self.backbone.model.vision_tower),
+            "projector": count(self.backbone.model.multi_modal_projector),
+            "language_model": count(lm) - lora,
+            "lm_head": head.numel() if untied else 0,  # 0 when tied to the token embeddings
+            "lora": lora,
+            "driving_heads": heads + self.waypoint_queries.numel(),
+            "total": count(self),
+            "trainable": sum(p.numel() for p in self.parameters() if p.requires_grad),
+        }

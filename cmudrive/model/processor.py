@@ -1,0 +1,257 @@
+"""Rows (dicts of one CAV at one tick) to a batch of tensors for :class:`cmudrive.model.V2VVLA`.
+
+A row has the dataset's columns: ``camera`` (PIL RGB or (H, W, 3) uint8, 256 x 128), ``merged_bev``
+(PIL RGB or array, the merged occupancy render, ego driving up), ``speed`` [m/s], ``target_points``
+(2, 2) [m] (ego frame, x forward, y left), ``other_cavs`` (list of [cav, x, y, yaw]) and, for training,
+``path`` (20, 2) [m], ``speed_waypoints`` (10, 2) [m], ``commentary`` (str), ``communication`` (str, ""
+for none), ``partner_label`` (int, -1 for none). Other keys are ignored.
+
+Token layout of one row (left-padded, so that every row ends at the same position and the model can
+append its waypoint queries after it)::
+
+    <pad>... <img> <IMG_CONTEXT>*(camera tokens) </img> [<img> <IMG_CONTEXT>*(BEV tokens) </img>] \\n
+    Current speed: 4.2 m/s. Target waypoint: <TARGET_POINT><TARGET_POINT>. [Other CAVs: ...] {task}
+    {answer} </s>
+
+The answer (training only) is the commentary, and for the cooperative model " Communication: " followed
+by the communication sentence or "none."; labels are -100 everywhere except on the answer and ``</s>``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, fields, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from PIL import Image
+
+from cmudrive.model.config import ModelConfig
+from cmudrive.model.tokenizer import IMG_CONTEXT, IMG_END, IMG_START, TARGET_POINT, load_tokenizer
+
+if TYPE_CHECKING:
+    import torch
+    from transformers import PreTrainedTokenizerBase
+
+IMAGE_MEAN = np.array([0.485, 0.456, 0.406], np.float32)  # ImageNet, as InternVL
+IMAGE_STD = np.array([0.229, 0.224, 0.225], np.float32)
+IGNORE_INDEX = -100
+COMMUNICATION_PREFIX = "Communication:"
+NO_COMMUNICATION = "none."
+_PARTNER_RE = re.compile(r"\bCAV\s*(\d+)")
+
+
+@dataclass
+class VLABatch:
+    """Tensors of one batch of ``B`` rows; ``L`` tokens per row; the ``None`` fields are training targets."""
+
+    pixel_values: torch.Tensor  # (B, n_images, 3, S, S) float32, ImageNet-normalised tiles
+    input_ids: torch.Tensor  # (B, L) int64, left-padded
+    attention_mask: torch.Tensor  # (B, L) int64, 0 on padding
+    target_points: torch.Tensor  # (B, 2, 2) float32 [m], ego frame
+    labels: torch.Tensor | None = None  # (B, L) int64, IGNORE_INDEX except on answer tokens
+    path: torch.Tensor | None = None  # (B, n_path, 2) float32 [m]
+    speed_waypoints: torch.Tensor | None = None  # (B, n_speed, 2) float32 [m]
+    partner_label: torch.Tensor | None = None  # (B,) int64, -1 for none
+
+    def to(self, device: torch.device | str, non_blocking: bool = False) -> VLABatch:
+        return self._map(lambda t: t.to(device, non_blocking=non_blocking))
+
+    def pin_memory(self) -> VLABatch:
+        """For ``DataLoader(..., collate_fn=processor, pin_memory=True)``."""
+        return self._map(lambda t: t.pin_memory())
+
+    def _map(self, fn: Callable[[torch.Tensor], torch.Tensor]) -> VLABatch:
+        moved: dict[str, Any] = {}
+        for f in fields(self):
+            value = getattr(self, f.name)
+            moved[f.name] = None if value is None else fn(value)
+        return replace(self, **moved)
+
+    def __len__(self) -> int:
+        return int(self.input_ids.shape[0])
+
+
+def parse_partner(text: str) -> int:
+    """The CAV named after "Communication:" in a generated answer, or -1 when it names none."""
+    _, sep, tail = text.partition(COMMUNICATION_PREFIX)
+    match = _PARTNER_RE.search(tail) if sep else None
+    return int(match.group(1)) if match else -1
+
+
+def _rgb(image: Any) -> Image.Image:
+    if isinstance(image, Image.Image):
+        return image.convert("RGB")
+    array = np.asarray(image)
+    if array.ndim != 3 or array.shape[2] != 3 or array.dtype != np.uint8:
+        raise ValueError(f"expected an (H, W, 3) uint8 image, got {array.shape} {array.dtype}")
+    return Image.fromarray(array)
+
+
+def _normalise(image: Image.Image) -> np.ndarray:
+    """(3, S, S) float32 from an RGB image."""
+    array = np.asarray(image, np.float32) / 255.0
+    return ((array - IMAGE_MEAN) / IMAGE_STD).transpose(2, 0, 1)
+
+
+class VLAProcessor:
+    """Turns rows into :class:`VLABatch`; holds the tokenizer and the image geometry of the backbone."""
+
+    def __init__(
+        self, config: ModelConfig, tokenizer: PreTrainedTokenizerBase, image_size: int, tokens_per_image: int
+    ) -> None:
+        self.config = config
+        self.tokenizer = tokenizer
+        self.image_size = image_size  # [px] side of one tile
+        self.tokens_per_image = tokens_per_image  # visual tokens per tile after pixel shuffle
+        vocab = tokenizer.get_vocab()
+        self.image_token_id = vocab[IMG_CONTEXT]
+        self.target_point_token_id = vocab[TARGET_POINT]
+        if tokenizer.eos_token_id is None or tokenizer.pad_token_id is None:
+            raise ValueError("the tokenizer needs an eos and a pad token")
+        self.eos_token_id = int(tokenizer.eos_token_id)
+        self.pad_token_id = int(tokenizer.pad_token_id)
+
+    @classmethod
+    def from_config(
+        cls, config: ModelConfig, tokenizer: PreTrainedTokenizerBase | None = None
+    ) -> VLAProcessor:
+        """Geometry from ``config.vision`` or, for a pretrained backbone, from its ``config.json``."""
+        tokenizer = tokenizer or load_tokenizer(config.tokenizer_path or config.pretrained_path)
+        if config.vision is not None:
+            side, patch, ratio = config.vision.image_size, config.vision.patch_size, 0.5
+        else:
+            assert config.pretrained_path is not None
+            hf = json.loads((Path(config.pretrained_path) / "config.json").read_text())
+            vision = hf["vision_config"]
+            side, patch = _first(vision["image_size"]), _first(vision["patch_size"])
+            ratio = float(hf.get("downsample_ratio", 0.5))
+        tokens = round((side // patch) ** 2 * ratio**2)
+        return cls(config, tokenizer, side, tokens)
+
+    # ---- images -------------------------------------------------------------------------------------
+    def camera_tiles(self, image: Any) -> np.ndarray:
+        """(camera_tiles, 3, S, S): bonnet rows cropped, resized to tiles*S x S, split left to right."""
+        img = _rgb(image)
+        keep = max(1, round(img.height * (1.0 - self.config.bonnet_crop)))
+        n, s = self.config.camera_tiles, self.image_size
+        wide = img.crop((0, 0, img.width, keep)).resize((n * s, s), Image.Resampling.BICUBIC)
+        return np.stack([_normalise(wide.crop((i * s, 0, (i + 1) * s, s))) for i in range(n)])
+
+    def bev_tile(self, image: Any) -> np.ndarray:
+        """(1, 3, S, S): the merged BEV padded to a square with black (same metres per pixel along both
+        axes), centred, then resized."""
+        img = _rgb(image)
+        side = max(img.width, img.height)
+        square = Image.new("RGB", (side, side))
+        square.paste(img, ((side - img.width) // 2, (side - img.height) // 2))
+        return _normalise(square.resize((self.image_size, self.image_size), Image.Resampling.BICUBIC))[None]
+
+    def pixel_values(self, row: dict[str, Any]) -> np.ndarray:
+        """(n_images, 3, S, S) of one row: camera tiles, then the merged BEV for the cooperative model."""
+        tiles = [self.camera_tiles(row["camera"])]
+        if self.config.cooperative:
+            tiles.append(self.bev_tile(row["merged_bev"]))
+        return np.concatenate(tiles)
+
+    # ---- text ---------------------------------------------------------------------------------------
+    def others_text(self, other_cavs: Sequence[Sequence[float]]) -> str:
+        """The nearest other CAVs within range, nearest first, whole metres (ego frame, x forward, y left):
+        "Other CAVs: CAV 3 at (12, -3), ..." (digits are one token each, so every decimal costs tokens)."""
+        near = [c for c in other_cavs if math.hypot(c[1], c[2]) <= self.config.other_cavs_range_m]
+        near.sort(key=lambda c: math.hypot(c[1], c[2]))
+        listed = [f"CAV {int(c[0])} at ({c[1]:.0f}, {c[2]:.0f})" for c in near[: self.config.max_other_cavs]]
+        return "Other CAVs: " + (", ".join(listed) if listed else "none") + "."
+
+    def prompt(self, row: dict[str, Any]) -> str:
+        """The prompt text of one row, image placeholders included."""
+        ctx = IMG_CONTEXT * self.tokens_per_image
+        images = IMG_START + ctx * self.config.camera_tiles + IMG_END
+        text = f"Current speed: {float(row['speed']):.1f} m/s. Target waypoint: {TARGET_POINT}{TARGET_POINT}."
+        if self.config.cooperative:
+            images += IMG_START + ctx + IMG_END
+            text += " " + self.others_text(row.get("other_cavs") or [])
+        text = f"{images}\n{text} {self.config.task_prompt}"
+        if self.config.chat_template:
+            messages = [{"role": "user", "content": text}]
+            text = str(
+                self.tokenizer.apply_chat_template(messages, add_generation_prompt=True, tokenize=False)
+            )
+        return text
+
+    def answer(self, row: dict[str, Any]) -> str:
+        """The target text of one row; checks that the named partner can be parsed back."""
+        text = str(row["commentary"]).strip()
+        if not self.config.cooperative:
+            return text
+        communication = str(row.get("communication") or "").strip() or NO_COMMUNICATION
+        text = f"{text} {COMMUNICATION_PREFIX} {communication}"
+        label = int(row.get("partner_label", -1))
+        if parse_partner(text) != label:
+            raise ValueError(f"communication {communication!r} does not name partner_label {label}")
+        return text
+
+    def encode(self, row: dict[str, Any], with_answer: bool) -> tuple[list[int], list[int]]:
+        """Token ids and labels of one row (labels all IGNORE_INDEX without the answer)."""
+        ids = list(self.tokenizer(self.prompt(row), add_special_tokens=False)["input_ids"])
+        labels = [IGNORE_INDEX] * len(ids)
+        if with_answer:
+            lead = "" if self.config.chat_template else " "
+            answer = self.tokenizer(lead + self.answer(row), add_special_tokens=False)["input_ids"]
+            answer = [*answer[: self.config.max_answer_tokens - 1], self.eos_token_id]
+            ids += answer
+            labels += answer
+        expected = self.tokens_per_image * self.config.n_images
+        if ids.count(self.image_token_id) != expected or ids.count(self.target_point_token_id) != 2:
+            raise ValueError("the prompt's image / target-point placeholders did not tokenize one to one")
+        return ids, labels
+
+    # ---- batch --------------------------------------------------------------------------------------
+    def __call__(self, rows: Sequence[dict[str, Any]], with_answer: bool | None = None) -> VLABatch:
+        """Batch ``rows``; ``with_answer`` (default: when the rows carry ``commentary``) adds the answer
+        tokens, labels and waypoint targets (training), else the batch is a prompt for :meth:`predict`."""
+        import torch
+
+        if not rows:
+            raise ValueError("no rows")
+        if with_answer is None:
+            with_answer = "commentary" in rows[0]
+        encoded = [self.encode(r, with_answer) for r in rows]
+        length = max(len(ids) for ids, _ in encoded)
+        input_ids = torch.full((len(rows), length), self.pad_token_id, dtype=torch.long)
+        labels = torch.full((len(rows), length), IGNORE_INDEX, dtype=torch.long)
+        mask = torch.zeros((len(rows), length), dtype=torch.long)
+        for i, (ids, lab) in enumerate(encoded):  # left padding
+            input_ids[i, length - len(ids) :] = torch.tensor(ids)
+            labels[i, length - len(ids) :] = torch.tensor(lab)
+            mask[i, length - len(ids) :] = 1
+        batch = VLABatch(
+            pixel_values=torch.from_numpy(np.stack([self.pixel_values(r) for r in rows])),
+            input_ids=input_ids,
+            attention_mask=mask,
+            target_points=_stack(rows, "target_points", (2, 2)),
+        )
+        if with_answer:
+            batch.labels = labels
+            batch.path = _stack(rows, "path", (self.config.n_path, 2))
+            batch.speed_waypoints = _stack(rows, "speed_waypoints", (self.config.n_speed, 2))
+            batch.partner_label = torch.tensor([int(r.get("partner_label", -1)) for r in rows])
+        return batch
+
+
+def _first(value: int | Sequence[int]) -> int:
+    return int(value if isinstance(value, int) else value[0])
+
+
+def _stack(rows: Sequence[dict[str, Any]], key: str, shape: tuple[int, ...]) -> torch.Tensor:
+    import torch
+
+    arrays = [np.asarray(r[key], np.float32) for r in rows]
+    for a in arrays:
+        if a.shape != shape:
+            raise ValueError(f"{key}: expected shape {shape}, got {a.shape}")
+    return torch.from_numpy(np.stack(arrays))

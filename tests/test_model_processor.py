@@ -1,0 +1,149 @@
+"""The processor: rows (dicts) to tiles, left-padded token ids, answer-only labels and targets."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from PIL import Image
+
+pytest.importorskip("torch", reason="the model needs the 'model' extra (torch, transformers, peft)")
+pytest.importorskip("transformers", reason="the model needs the 'model' extra (torch, transformers, peft)")
+
+import torch
+
+from cmudrive.model import VLAProcessor, get_config, parse_partner
+from cmudrive.model.processor import IGNORE_INDEX, IMAGE_MEAN, IMAGE_STD
+from tests.model_rows import make_row, rows
+
+
+@pytest.fixture(scope="module")
+def coop() -> VLAProcessor:
+    return VLAProcessor.from_config(get_config("tiny"))
+
+
+@pytest.fixture(scope="module")
+def baseline() -> VLAProcessor:
+    return VLAProcessor.from_config(get_config("tiny", cooperative=False))
+
+
+def test_batch_shapes_and_left_padding(coop: VLAProcessor) -> None:
+    batch = coop(rows(3))
+    b = batch.input_ids.shape[0]
+    assert batch.pixel_values.shape == (3, 3, 3, 64, 64)  # 2 camera tiles + 1 BEV tile of 64 px
+    assert coop.tokens_per_image == 16  # (64 / 8)^2 patches, pixel shuffle 0.5 -> 16
+    assert batch.target_points.shape == (3, 2, 2)
+    assert batch.path is not None and batch.path.shape == (3, 20, 2)
+    assert batch.speed_waypoints is not None and batch.speed_waypoints.shape == (3, 10, 2)
+    assert batch.partner_label is not None and batch.partner_label.tolist() == [-1, 3, -1]
+    for i in range(b):
+        n_pad = int((batch.attention_mask[i] == 0).sum())
+        assert (batch.attention_mask[i, n_pad:] == 1).all()  # padding only on the left
+        assert (batch.input_ids[i, :n_pad] == coop.pad_token_id).all()
+        assert batch.input_ids[i, -1] == coop.eos_token_id  # every row ends with its answer's </s>
+        assert int((batch.input_ids[i] == coop.image_token_id).sum()) == 3 * 16
+        assert int((batch.input_ids[i] == coop.target_point_token_id).sum()) == 2
+
+
+def test_labels_cover_exactly_the_answer(coop: VLAProcessor) -> None:
+    row = make_row(1)
+    batch = coop([row])
+    labels, ids = batch.labels[0], batch.input_ids[0]  # type: ignore[index]
+    answer = labels != IGNORE_INDEX
+    first = int(answer.nonzero()[0])
+    assert answer[first:].all() and not answer[:first].any()  # one contiguous block at the end
+    assert torch.equal(labels[answer], ids[answer])
+    text = coop.tokenizer.decode(ids[answer].tolist(), skip_special_tokens=True)
+    assert (
+        text == " Turn left. Stop now because of the red light. Communication: CAV 3 can see the pedestrian."
+    )
+    prompt = coop.tokenizer.decode(ids[:first].tolist(), skip_special_tokens=True)
+    # CAV 7 at 95 m is beyond the 70 m range; the target points are embeddings, not text
+    assert prompt.endswith(
+        "\nCurrent speed: 3.0 m/s. Target waypoint: . Other CAVs: CAV 3 at (12, -4). "
+        "What should the ego do next?"
+    )
+
+
+def test_prompt_only_batch_for_prediction(coop: VLAProcessor) -> None:
+    row = {k: v for k, v in make_row(0).items() if k not in ("path", "speed_waypoints", "commentary")}
+    batch = coop([row])
+    assert batch.labels is None and batch.path is None
+    assert coop.tokenizer.decode(batch.input_ids[0, -3:]).endswith("next?")
+
+
+def test_camera_tiles_crop_the_bonnet_and_split_left_right(coop: VLAProcessor) -> None:
+    image = np.zeros((128, 256, 3), np.uint8)
+    image[:, :128] = (255, 0, 0)  # left half red
+    image[:, 128:] = (0, 0, 255)  # right half blue
+    image[90:] = (255, 255, 255)  # bottom 38 rows (the bonnet, 4.8/16 of 128) white
+    tiles = coop.camera_tiles(image)
+    assert tiles.shape == (2, 3, 64, 64)
+    pixel = tiles * IMAGE_STD[None, :, None, None] + IMAGE_MEAN[None, :, None, None]  # back to [0, 1]
+    assert np.allclose(pixel[0, :, 4:-4, 4:-4].mean(axis=(1, 2)), [1, 0, 0], atol=0.02)
+    assert np.allclose(pixel[1, :, 4:-4, 4:-4].mean(axis=(1, 2)), [0, 0, 1], atol=0.02)
+    assert pixel[:, 1, 60:].max() < 0.05  # no white (green channel) from the cropped rows
+
+
+def test_bev_is_padded_to_a_square_not_stretched(coop: VLAProcessor) -> None:
+    bev = Image.new("RGB", (128, 192), (255, 255, 255))  # 128 wide, 192 tall: ego driving up
+    tile = coop.bev_tile(bev)[0] * IMAGE_STD[:, None, None] + IMAGE_MEAN[:, None, None]
+    assert tile.shape == (3, 64, 64)
+    assert tile[:, :, 24:40].min() > 0.95  # the 128 px wide grid covers the middle 2/3
+    assert tile[:, :, :8].max() < 0.05 and tile[:, :, -8:].max() < 0.05  # black margins left and right
+
+
+def test_other_cavs_in_range_nearest_first(coop: VLAProcessor) -> None:
+    text = coop.others_text([[5, 40.2, 0.4, 0.0], [9, 3.0, -4.2, 0.0], [1, 0.0, 71.0, 0.0]])
+    assert text == "Other CAVs: CAV 9 at (3, -4), CAV 5 at (40, 0)."  # CAV 1 is beyond 70 m
+    assert coop.others_text([]) == "Other CAVs: none."
+    many = coop.others_text([[k, float(k + 1), 0.0, 0.0] for k in range(12)])
+    assert many.count("CAV ") == 8 and "CAV 7 " in many and "CAV 8 " not in many
+
+
+def test_baseline_takes_no_bev_no_other_cavs_no_communication(baseline: VLAProcessor) -> None:
+    row = make_row(1)
+    batch = baseline([row])
+    assert batch.pixel_values.shape == (1, 2, 3, 64, 64)  # camera tiles only
+    text = baseline.tokenizer.decode(batch.input_ids[0], skip_special_tokens=True)
+    assert "CAV" not in text and "Communication" not in text
+    changed = {**row, "merged_bev": None, "other_cavs": [[1, 5.0, 5.0, 0.0]], "communication": "x"}
+    again = baseline([changed])
+    assert torch.equal(again.input_ids, batch.input_ids) and torch.equal(
+        again.pixel_values, batch.pixel_values
+    )
+
+
+def test_communication_must_name_the_partner_label(coop: VLAProcessor) -> None:
+    with pytest.raises(ValueError, match="partner_label 4"):
+        coop([{**make_row(1), "partner_label": 4}])
+    with pytest.raises(ValueError, match="shape"):
+        coop([{**make_row(0), "path": np.zeros((19, 2))}])
+
+
+def test_parse_partner() -> None:
+    assert parse_partner("Stop now. Communication: CAV 12 can see the pedestrian.") == 12
+    assert parse_partner("Stop now. Communication: none.") == -1
+    assert parse_partner("Follow CAV 2. Communication: none.") == -1  # only the communication sentence counts
+    assert parse_partner("Follow the route.") == -1
+
+
+def test_rows_read_back_from_a_hugging_face_dataset(coop: VLAProcessor) -> None:
+    """Image columns come back as PIL images, arrays as nested lists: the processor takes them as they are."""
+    datasets = pytest.importorskip("datasets", reason="needs the datasets package")
+    built = rows(2)
+    for r in built:
+        r["path"], r["speed_waypoints"] = r["path"].tolist(), r["speed_waypoints"].tolist()
+    ds = datasets.Dataset.from_list(built).cast_column("camera", datasets.Image())
+    read = list(ds)
+    assert isinstance(read[0]["camera"], Image.Image) and isinstance(read[0]["path"], list)
+    a, b = coop(built), coop(read)
+    assert torch.equal(a.input_ids, b.input_ids) and torch.equal(a.pixel_values, b.pixel_values)
+    assert torch.equal(a.path, b.path)  # type: ignore[arg-type]
+
+
+def test_processor_is_a_dataloader_collate_fn(coop: VLAProcessor) -> None:
+    from torch.utils.data import DataLoader
+
+    batches = list(DataLoader(rows(4), batch_size=2, collate_fn=coop))
+    assert [b.input_ids.shape[0] for b in batches] == [2, 2]
+    assert torch.equal(batches[1].path, coop(rows(4)[2:]).path)  # type: ignore[arg-type]
