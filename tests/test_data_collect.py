@@ -232,3 +232,18 @@ def test_a_route_that_crashes_midway_leaves_no_shard(mini: RoadMap, mini_net: Pa
     assert not shard_path(tmp_path, "crashes").exists() and not list(tmp_path.glob(".*.tmp"))
     with pytest.raises(FileNotFoundError, match=r"no \.parquet shard"):
         load_shards(tmp_path)
+
+
+def test_rows_feed_the_model_processor(dataset_dir: Path) -> None:
+    """The shards' columns are what V2V-VLA's processor reads (camera, merged BEV, speed, target points,
+    other CAVs, waypoint and language labels)."""
+    pytest.importorskip("torch")
+    from cmudrive.model.config import get_config
+    from cmudrive.model.processor import VLAProcessor
+
+    ds = datasets.load_dataset("parquet", data_dir=str(dataset_dir), split="train")
+    rows = [ds[i] for i in range(0, len(ds), 25)]
+    batch = VLAProcessor.from_config(get_config("tiny"))(rows)
+    assert batch.path is not None and tuple(batch.path.shape) == (len(rows), 20, 2)
+    assert batch.speed_waypoints is not None and tuple(batch.speed_waypoints.shape) == (len(rows), 10, 2)
+    assert tuple(batch.target_points.shape) == (len(rows), 2, 2)
