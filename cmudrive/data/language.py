@@ -317,7 +317,7 @@ def critical_rows(snap: Snapshot, d: ExpertDecision, rows: np.ndarray, detour_ro
     crit = np.where(d.object_row >= 0, d.object_row, detour_row).astype(np.int64)
     todo = np.flatnonzero(crit < 0)
     if len(todo) and len(d.path[0]) > 1:
-        skip = np.zeros((len(todo), snap.num_actors), bool)
+        skip = snap.other_level(rows[todo])  # not a car on a bridge over the CAV's road
         skip[:, ~snap.valid] = True
         _, hit_row = first_in_corridor(
             np.ascontiguousarray(d.path[todo], np.float64),
