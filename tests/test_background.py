@@ -13,7 +13,7 @@ import pytest
 
 from cmudrive.maps import LaneKind, LanePos, RoadMap, RoutePlanner, available_towns, load_map
 from cmudrive.sim.actor_types import ACTOR_TYPES
-from cmudrive.sim.background import BackgroundActivity, BackgroundConfig
+from cmudrive.sim.background import BackgroundActivity, BackgroundConfig, upstream_windows
 from cmudrive.sim.dynamics import Controls
 from cmudrive.sim.snapshot import ActorKind, Role, Snapshot
 from cmudrive.sim.world import World, WorldConfig
@@ -351,6 +351,33 @@ def test_room_behind_a_cav_on_a_curved_highway() -> None:
         world.background = bg
         bg.populate(world)
         assert_room_to_stop_behind_cavs(world, bg, cfg)
+
+
+def test_no_spawn_upstream_of_a_cav_round_a_bend() -> None:
+    """Town05's lane 24_3 turns ~70 deg in the 30 m before (-249, -94): a car spawned there at 25 m/s
+    behind a standing CAV was not "behind" it by headings and ran into it at tick 38 (Accident_4, CAV 13).
+    No spawn lies on the lanes leading to the CAV within its stopping reach."""
+    m = load_map("Town05")
+    lane = m.lane("24_3")
+    s, _ = m.index.project(np.array([[-248.9, -94.0]]), np.array([lane]))
+    cfg = BackgroundConfig(vehicles=120, pedestrians=0)
+    reach = float(m.lane_speed[lane]) ** 2 / (2.0 * cfg.fill_decel) + cfg.fill_stop_gap
+    windows = upstream_windows(m, lane, float(s[0]), reach)
+    assert sum(hi - lo for _, lo, hi in windows) >= reach - 1.0
+    with World(WorldConfig("Town05", seed=3), road_map=m) as world:
+        world.add_cav(
+            RoutePlanner(m).plan_lanes(LanePos(lane, float(s[0])), LanePos(lane, float(s[0]) + 10.0))
+        )
+        bg = BackgroundActivity(cfg)
+        world.background = bg
+        bg.populate(world)
+        for _ in range(40):
+            world.tick(Controls(np.zeros(1), np.zeros(1), np.ones(1)))
+        assert bg.spawns
+        for rec in bg.spawns:
+            s_rec = m.index.project(np.array([[rec.x, rec.y]]), np.array([rec.lane]))[0][0]
+            inside = [lo - 0.5 <= s_rec <= hi + 0.5 for up, lo, hi in windows if up == rec.lane]
+            assert not any(inside), (rec.actor_id, m.lane_ids[rec.lane], s_rec)
 
 
 def test_background_car_deadlocked_in_front_of_a_standing_cav_is_removed(

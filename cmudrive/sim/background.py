@@ -160,6 +160,24 @@ class SpawnPoints:
     slot: np.ndarray  # (M,) int64 number of the point along its lane (0, 1, ...)
 
 
+def upstream_windows(road_map: RoadMap, lane: int, s: float, reach: float) -> list[tuple[int, float, float]]:
+    """(lane, s_from, s_to) stretches of lane within ``reach`` metres upstream of position ``s`` on
+    ``lane``, following predecessor lanes (internal lanes included) back through junctions."""
+    out = [(lane, max(s - reach, 0.0), s)]
+    todo = [(int(p), reach - s) for p in road_map.predecessors(lane)] if reach > s else []
+    seen = {lane}
+    while todo:
+        up, left = todo.pop()
+        if up in seen or left <= 0.0:
+            continue
+        seen.add(up)
+        length = float(road_map.lane_length[up])
+        out.append((up, max(length - left, 0.0), length))
+        if left > length:
+            todo.extend((int(p), left - length) for p in road_map.predecessors(up))
+    return out
+
+
 def lane_points(road_map: RoadMap, lanes: np.ndarray, spacing: float, end_margin: float) -> SpawnPoints:
     """Points every ``spacing`` m along each lane (first at spacing / 2), >= ``end_margin`` from its end."""
     lanes = np.asarray(lanes, np.int64)
@@ -540,9 +558,28 @@ class BackgroundActivity:
         closing = np.maximum(speed**2 - cavs.speed[None, :] ** 2, 0.0)
         reach = closing / (2.0 * cfg.fill_decel) + cfg.fill_stop_gap
         same_way = np.cos(cavs.yaw[None, :] - pts.heading[idx][:, None]) > 0.5
-        return ((along > 0.0) & (along < reach) & (np.abs(across) < cfg.fill_behind_width) & same_way).any(
+        near = ((along > 0.0) & (along < reach) & (np.abs(across) < cfg.fill_behind_width) & same_way).any(
             axis=1
         )
+        return near | self._upstream_of_a_cav(pts, idx, cavs)
+
+    def _upstream_of_a_cav(self, pts: SpawnPoints, idx: np.ndarray, cavs: _Cavs) -> np.ndarray:
+        """(k,) spawn points ``idx`` on the lanes that lead to a CAV's lane (the lane graph walked back),
+        closer to it along them than a car at that lane's speed needs to slow to the CAV's speed: on a
+        bend turning 70 deg within 30 m the geometric test above does not see such a point as behind."""
+        cfg, m = self.config, self._need_world().map
+        out = np.zeros(len(idx), bool)
+        on = m.index.nearest_lane(cavs.xy, heading=cavs.yaw, max_distance=3.0)
+        lane_of_pt, s_of_pt = pts.lane[idx], pts.s[idx]
+        for c in np.flatnonzero(on.lane >= 0).tolist():
+            lane = int(on.lane[c])
+            speed = float(m.lane_speed[lane])
+            reach = (
+                max(speed**2 - float(cavs.speed[c]) ** 2, 0.0) / (2.0 * cfg.fill_decel) + cfg.fill_stop_gap
+            )
+            for up, lo, hi in upstream_windows(m, lane, float(on.s[c]), reach):
+                out |= (lane_of_pt == up) & (s_of_pt >= lo) & (s_of_pt <= hi)
+        return out
 
     def _add_vehicle(
         self, world: World, type_name: str, point: int, cav_distance: float, initial: bool
