@@ -202,7 +202,7 @@ def test_predict_with_given_answers_equals_the_decoding_that_produced_them(model
     pred = model.predict(prompts, max_new_tokens=5)
     answers = [
         pred.answer_ids[0],
-        pred.answer_ids[1][:2] + [model.processor.eos_token_id],
+        [*pred.answer_ids[1][:2], model.processor.eos_token_id],
         pred.answer_ids[2],
     ]
     again = model.predict(prompts, answers=answers)

@@ -91,7 +91,8 @@ def test_labels_move_with_the_rotation_about_the_camera() -> None:
         after = np.linalg.norm(np.asarray(out[key], float) - [-1.5, 0.0], axis=1)
         assert after == pytest.approx(before, abs=1e-4)
     cav, x, y, yaw = out["other_cavs"][0]
-    assert cav == 3 and y < 0 and yaw == pytest.approx(-dyaw)
+    assert cav == 3 and x == pytest.approx(11.5 * math.cos(dyaw) - 1.5, abs=1e-6) and y < 0
+    assert yaw == pytest.approx(-dyaw)
     assert out["speed"] == 4.0 and out["commentary"] == row["commentary"]
     assert rotate_sample(row, 0.0) is row
 
@@ -101,7 +102,8 @@ def test_the_bev_is_redrawn_in_the_rotated_frame() -> None:
     packed[87:89, 63:65] = 1  # a vehicle ~20 m straight ahead (rows from 64 m ahead, 0.5 m cells)
     bev = Image.fromarray(packed_to_rgb(packed))
     dyaw = math.radians(10.0)
-    out = np.asarray(rotate_sample({"camera": Image.new("RGB", (256, 128)), "merged_bev": bev}, dyaw)["merged_bev"])
+    row = {"camera": Image.new("RGB", (256, 128)), "merged_bev": bev}
+    out = np.asarray(rotate_sample(row, dyaw)["merged_bev"])
     rows, cols = np.nonzero(bev_codes(out) == 1)
     x, y = 64.0 - (rows.mean() + 0.5) * 0.5, 32.0 - (cols.mean() + 0.5) * 0.5  # cell centres, ego frame
     assert math.degrees(math.atan2(y, x + 1.5)) == pytest.approx(-10.0, abs=2.0)  # seen from the camera
@@ -175,5 +177,6 @@ def test_cli_trains_the_baseline(data: Path, tmp_path: Path) -> None:
     result = CliRunner().invoke(app, [*args, "--batch-size", "2", "--save-every", "2"])
     assert result.exit_code == 0, result.output
     assert not V2VVLA.from_pretrained(out / "model").config.cooperative
-    missing = CliRunner().invoke(app, ["train", "--data", str(tmp_path / "none"), "--out", str(tmp_path / "x")])
+    none = ["train", "--data", str(tmp_path / "none"), "--out", str(tmp_path / "x")]
+    missing = CliRunner().invoke(app, none)
     assert missing.exit_code == 1 and "no .parquet shard" in " ".join(missing.output.split())

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import math
 import shutil
 import time
@@ -413,7 +414,13 @@ def _summarise(window: list[dict[str, float]], seconds: float) -> dict[str, Any]
 
 def _save(accelerator: Any, model: Any, out: Path, state: TrainState, keep: int) -> None:
     path = out / CHECKPOINTS / f"step_{state.step:06d}"
-    accelerator.save_state(str(path))
+    quiet = logging.getLogger("accelerate.utils.other")  # "removed shared tensor": the tied LM head,
+    level = quiet.level  # which safetensors stores once and load_state ties again (tested by resuming)
+    quiet.setLevel(logging.ERROR)
+    try:
+        accelerator.save_state(str(path))
+    finally:
+        quiet.setLevel(level)
     if accelerator.is_main_process:
         accelerator.unwrap_model(model).save_pretrained(path / FINAL)
         (path / STATE).write_text(json.dumps(dataclasses.asdict(state)) + "\n")  # last: marks it complete
