@@ -234,10 +234,12 @@ def train(config: TrainConfig, resume: bool = False, progress: bool = True) -> d
         if len(val_rows)
         else None
     )
+    loader = accelerator.prepare(loader)  # first: its length is the per-process batches of an epoch
+    if val_loader is not None:
+        val_loader = accelerator.prepare(val_loader)
+    total = config.max_steps if config.max_steps is not None else len(loader) * config.epochs
     params = [p for p in model.parameters() if p.requires_grad]
     optimizer = torch.optim.AdamW(params, lr=config.learning_rate, weight_decay=config.weight_decay)
-    steps_per_epoch = math.ceil(len(train_set) / (config.batch_size * accelerator.num_processes))
-    total = config.max_steps if config.max_steps is not None else steps_per_epoch * config.epochs
     # accelerate steps a prepared scheduler once per process per optimizer step: count in those units
     scheduler = torch.optim.lr_scheduler.OneCycleLR(
         optimizer,
@@ -247,9 +249,7 @@ def train(config: TrainConfig, resume: bool = False, progress: bool = True) -> d
         anneal_strategy="cos",
         cycle_momentum=False,
     )
-    model, optimizer, loader, scheduler = accelerator.prepare(model, optimizer, loader, scheduler)
-    if val_loader is not None:
-        val_loader = accelerator.prepare(val_loader)
+    model, optimizer, scheduler = accelerator.prepare(model, optimizer, scheduler)
 
     state = TrainState()
     last = latest_checkpoint(out) if resume else None
