@@ -16,7 +16,14 @@ pytest.importorskip("transformers", reason="the model needs the 'model' extra (t
 
 import torch
 
-from cmudrive.agents.base import AgentSetupError, CavPlan, agent_factory, load_agent_class
+from cmudrive.agents.base import (
+    AgentSetupError,
+    CavPlan,
+    Observations,
+    RouteSetup,
+    agent_factory,
+    load_agent_class,
+)
 from cmudrive.agents.control import CREEP_AFTER, CREEP_TICKS, WaypointController, desired_speed, point_along
 from cmudrive.agents.v2v_vla import TargetPoints, V2VVLAAgent, V2VVLABaselineAgent, resolve_checkpoint
 from cmudrive.bench.evaluator import EvalConfig, evaluate_route
@@ -140,6 +147,62 @@ def test_a_baseline_checkpoint_is_refused_by_the_cooperative_agent(
 ) -> None:
     result = evaluate_route(straight, lambda: V2VVLAAgent(checkpoint=checkpoints["baseline"]), EMPTY)
     assert result.status == STATUS_AGENT_CRASHED and "holds a baseline model" in str(result.error)
+
+
+class FakeModel:
+    """Stands in for V2VVLA.predict: CAV row 0 gets a path curving left and names CAV 2, row 1 a straight
+    path and no partner; records whether each call decoded or reused answers."""
+
+    config = get_config("tiny")
+
+    def __init__(self) -> None:
+        self.calls: list[list[list[int]] | None] = []
+
+    def predict(
+        self, rows: list[dict[str, Any]], max_new_tokens: int | None = None, answers: Any = None
+    ) -> Any:
+        from cmudrive.model.modeling import VLAPrediction
+
+        self.calls.append(answers)
+        s = torch.arange(20.0)
+        left = torch.stack([s, 0.03 * s**2], dim=1)
+        straight = torch.stack([s, 0.0 * s], dim=1)
+        wp = torch.stack([torch.arange(1.0, 11.0) * 1.25, torch.zeros(10)], dim=1)  # 5 m/s
+        n = len(rows)
+        return VLAPrediction(
+            path=torch.stack([left, straight][:n]),
+            speed_waypoints=wp.expand(n, 10, 2),
+            text=["Turn left. Communication: CAV 2 can see the pedestrian.", "Go. Communication: none."][:n],
+            partner=[2, -1][:n],
+            answer_ids=[[7, 1], [8, 1]][:n],
+        )
+
+
+def test_the_agent_wires_predictions_to_controls_partners_and_the_language_rate(
+    checkpoints: dict[str, Path],
+) -> None:
+    agent = V2VVLAAgent(checkpoint=checkpoints["coop"], language_every=5)
+    agent.model = FakeModel()
+    plans = tuple(plan([(0, 0), (100, 0)]) for _ in range(3))
+    agent.setup(RouteSetup("r", "mini", "ClearNoon", 0.05, plans))
+    cav = np.array([1, 2])  # CAV 0 has left the route
+
+    def obs(tick: int) -> Observations:
+        return Observations(
+            tick=tick, time=0.05 * tick, cav_index=cav, x=np.array([0.0, 10.0]), y=np.zeros(2),
+            yaw=np.zeros(2), speed=np.array([3.0, 3.0]), accel=np.zeros(2),
+            other_cavs=np.array([[[np.nan] * 3, [np.nan] * 3, [10.0, 0.0, 0.0]],
+                                 [[np.nan] * 3, [-10.0, 0.0, 0.0], [np.nan] * 3]]),
+            camera=np.zeros((2, 128, 256, 3), np.uint8), merged_occupancy=np.zeros((2, 4, 192, 128), bool),
+        )  # fmt: skip
+
+    controls = [agent.run_step(obs(t)) for t in range(7)]
+    assert [a is None for a in agent.model.calls] == [True, False, False, False, False, True, False]
+    assert agent.model.calls[1] == [[7, 1], [8, 1]]  # the cached answers, in cav_index order
+    assert agent.next_partners().tolist() == [2, -1]  # type: ignore[union-attr]
+    assert controls[0].steer[0] < 0 and controls[0].steer[1] == pytest.approx(0.0)  # left: negative
+    assert np.all(controls[0].throttle > 0) and np.all(controls[0].brake == 0)
+    assert agent.last_text[1].startswith("Turn left")
 
 
 # ---- closed loop ------------------------------------------------------------------------------------
