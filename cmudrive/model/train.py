@@ -330,12 +330,18 @@ def train(config: TrainConfig, resume: bool = False, progress: bool = True) -> d
     return val_metrics
 
 
+RESUME_MAY_CHANGE = ("num_workers", "log_every")  # settings that do not change what is trained
+
+
 def _check_out(config: TrainConfig, out: Path, resume: bool) -> None:
     saved = out / "train_config.json"
     if resume and saved.is_file():
         old = json.loads(saved.read_text())
-        if old != json.loads(json.dumps(config.to_dict())):
-            diff = sorted(k for k in old if old[k] != json.loads(json.dumps(config.to_dict())).get(k))
+        new = json.loads(json.dumps(config.to_dict()))  # tuples as lists, as in the file
+        diff = sorted(
+            k for k in old.keys() | new.keys() if k not in RESUME_MAY_CHANGE and old.get(k) != new.get(k)
+        )
+        if diff:
             raise ValueError(f"{out}: --resume with a different configuration ({', '.join(diff)})")
     elif not resume and (out / CHECKPOINTS).exists():
         raise FileExistsError(f"{out} already holds a run: continue it with --resume or pick another --out")
