@@ -213,121 +213,116 @@ def latest_checkpoint(out: Path) -> Path | None:
 
 def train(config: TrainConfig, resume: bool = False, progress: bool = True) -> dict[str, float]:
     """Run (or continue) a training run; returns the last validation metrics (empty without validation)."""
-    from accelerate import Accelerator
-    from accelerate.utils import set_seed
-    from torch.utils.tensorboard import SummaryWriter
-    from tqdm.auto import tqdm
+    return Trainer(config, resume, progress).run()
 
-    out = Path(config.out)
-    train_rows, val_rows, val_routes = load_split(config)
-    if len(train_rows) == 0:
-        raise ValueError(f"{config.data}: no training rows after holding out routes {val_routes}")
-    _check_out(config, out, resume)
-    accelerator = Accelerator(mixed_precision=mixed_precision(config.mixed_precision))
-    set_seed(config.seed)
-    model = V2VVLA.from_config(config.model_config())
-    train_set = DrivingDataset(train_rows, config.augment, config.seed)
-    sampler = EpochSampler(len(train_set), config.seed)
-    loader = _loader(train_set, sampler, model, config)
-    val_loader = (
-        _loader(DrivingDataset(val_rows), EpochSampler(len(val_rows), 0, shuffle=False), model, config)
-        if len(val_rows)
-        else None
-    )
-    loader = accelerator.prepare(loader)  # first: its length is the per-process batches of an epoch
-    if val_loader is not None:
-        val_loader = accelerator.prepare(val_loader)
-    total = config.max_steps if config.max_steps is not None else len(loader) * config.epochs
-    params = [p for p in model.parameters() if p.requires_grad]
-    optimizer = torch.optim.AdamW(params, lr=config.learning_rate, weight_decay=config.weight_decay)
-    # accelerate steps a prepared scheduler once per process per optimizer step: count in those units
-    scheduler = torch.optim.lr_scheduler.OneCycleLR(
-        optimizer,
-        max_lr=config.learning_rate,
-        total_steps=total * accelerator.num_processes,
-        pct_start=config.warmup,
-        anneal_strategy="cos",
-        cycle_momentum=False,
-    )
-    model, optimizer, scheduler = accelerator.prepare(model, optimizer, scheduler)
 
-    state = TrainState()
-    last = latest_checkpoint(out) if resume else None
-    if last is not None:
-        accelerator.load_state(str(last))
-        state = TrainState(**json.loads((last / STATE).read_text()))
-        accelerator.print(f"resuming from {last} (step {state.step})")
-    writer = (
-        SummaryWriter(str(out / "tensorboard"), purge_step=state.step)
-        if accelerator.is_main_process
-        else None
-    )
-    metrics = _MetricsLog(out / "metrics.jsonl", state.step, accelerator.is_main_process)
-    if accelerator.is_main_process:
-        (out / "train_config.json").write_text(json.dumps(config.to_dict(), indent=2) + "\n")
-        metrics.write(
-            {
-                "split": "info",
-                "step": state.step,
-                "val_routes": val_routes,
-                "total_steps": total,
-                "train_rows": len(train_set),
-                "val_rows": len(val_rows),
-                "lr": config.learning_rate,
-                "mixed_precision": accelerator.mixed_precision,
-            }
+class Trainer:
+    """One run: ``__init__`` builds data, model, optimizer and schedule (and loads the checkpoint to resume
+    from), ``run`` steps until ``total`` optimizer steps, logging and checkpointing as it goes."""
+
+    def __init__(self, config: TrainConfig, resume: bool, progress: bool) -> None:
+        from accelerate import Accelerator
+        from accelerate.utils import set_seed
+
+        self.config, self.out, self.progress = config, Path(config.out), progress
+        train_rows, val_rows, val_routes = load_split(config)
+        if len(train_rows) == 0:
+            raise ValueError(f"{config.data}: no training rows after holding out routes {val_routes}")
+        _check_out(config, self.out, resume)
+        self.accelerator = acc = Accelerator(mixed_precision=mixed_precision(config.mixed_precision))
+        set_seed(config.seed)
+        model = V2VVLA.from_config(config.model_config())
+        self.train_set = DrivingDataset(train_rows, config.augment, config.seed)
+        self.sampler = EpochSampler(len(self.train_set), config.seed)
+        # the loader first: its prepared length is the per-process batches of an epoch
+        self.loader = acc.prepare(_loader(self.train_set, self.sampler, model, config))
+        val = DrivingDataset(val_rows)
+        self.val_loader = (
+            acc.prepare(_loader(val, EpochSampler(len(val), 0, shuffle=False), model, config))
+            if len(val)
+            else None
         )
-
-    bar = tqdm(
-        total=total,
-        initial=state.step,
-        disable=not (progress and accelerator.is_main_process),
-        desc="train",
-        unit="step",
-    )
-    val_metrics: dict[str, float] = {}
-    window: list[dict[str, float]] = []
-    tick = time.perf_counter()
-    model.train()
-    while state.step < total:
-        loader.set_epoch(state.epoch)  # accelerate's epoch counter; it passes it to the sampler
-        sampler.set_epoch(state.epoch)
-        train_set.set_epoch(state.epoch)
-        batches = (
-            accelerator.skip_first_batches(loader, state.batch_in_epoch) if state.batch_in_epoch else loader
+        self.total = config.max_steps if config.max_steps is not None else len(self.loader) * config.epochs
+        params = [p for p in model.parameters() if p.requires_grad]
+        optimizer = torch.optim.AdamW(params, lr=config.learning_rate, weight_decay=config.weight_decay)
+        scheduler = torch.optim.lr_scheduler.OneCycleLR(
+            optimizer,
+            max_lr=config.learning_rate,
+            # accelerate steps a prepared scheduler once per process per optimizer step: count in those
+            total_steps=self.total * acc.num_processes,
+            pct_start=config.warmup,
+            anneal_strategy="cos",
+            cycle_momentum=False,
         )
-        for batch in batches:
-            logs = _step(model, batch, optimizer, scheduler, accelerator, config.grad_clip)
-            state.step += 1
-            state.batch_in_epoch += 1
-            window.append({**logs, "samples": len(batch) * accelerator.num_processes})
-            bar.update(1)
-            if state.step % config.log_every == 0 or state.step == total:
-                now = time.perf_counter()
-                row = _summarise(window, now - tick)
-                row.update(split="train", step=state.step, epoch=state.epoch)
-                metrics.write(row, writer)
-                bar.set_postfix(loss=f"{row['loss']:.3f}")
-                window, tick = [], now
-            if state.step % config.save_every == 0 or state.step == total:
-                if val_loader is not None:
-                    val_metrics = evaluate(model, val_loader, accelerator, config.val_batches)
-                    metrics.write({"split": "val", "step": state.step, **val_metrics}, writer)
-                _save(accelerator, model, out, state, config.keep_checkpoints)
-                tick = time.perf_counter()  # checkpoints and validation are not training speed
-            if state.step >= total:
-                break
-        else:
-            state.epoch += 1
-            state.batch_in_epoch = 0
-    bar.close()
-    accelerator.wait_for_everyone()
-    if accelerator.is_main_process:
-        accelerator.unwrap_model(model).save_pretrained(out / FINAL)
-    if writer is not None:
-        writer.close()
-    accelerator.end_training()
-    return val_metrics
+        self.model, self.optimizer, self.scheduler = acc.prepare(model, optimizer, scheduler)
+        self.state = TrainState()
+        last = latest_checkpoint(self.out) if resume else None
+        if last is not None:
+            acc.load_state(str(last))
+            self.state = TrainState(**json.loads((last / STATE).read_text()))
+            acc.print(f"resuming from {last} (step {self.state.step})")
+        self.metrics = _MetricsLog(self.out, self.state.step, acc.is_main_process)
+        if acc.is_main_process:
+            (self.out / "train_config.json").write_text(json.dumps(config.to_dict(), indent=2) + "\n")
+        info = {"val_routes": val_routes, "total_steps": self.total, "train_rows": len(self.train_set)}
+        info |= {"val_rows": len(val), "lr": config.learning_rate, "mixed_precision": acc.mixed_precision}
+        self.metrics.write({"split": "info", "step": self.state.step, **info})
+
+    def run(self) -> dict[str, float]:
+        from tqdm.auto import tqdm
+
+        acc, state = self.accelerator, self.state
+        show = self.progress and acc.is_main_process
+        self.bar = tqdm(total=self.total, initial=state.step, disable=not show, desc="train", unit="step")
+        self.val_metrics: dict[str, float] = {}
+        self.window: list[dict[str, float]] = []
+        self.tick = time.perf_counter()
+        self.model.train()
+        while state.step < self.total:
+            for batch in self._epoch():
+                logs = _step(self.model, batch, self.optimizer, self.scheduler, acc, self.config.grad_clip)
+                self._after_step(logs, len(batch) * acc.num_processes)
+                if state.step >= self.total:
+                    break
+            else:
+                state.epoch += 1
+                state.batch_in_epoch = 0
+        self.bar.close()
+        acc.wait_for_everyone()
+        if acc.is_main_process:
+            acc.unwrap_model(self.model).save_pretrained(self.out / FINAL)
+        self.metrics.close()
+        acc.end_training()
+        return self.val_metrics
+
+    def _epoch(self) -> Any:
+        """The batches of the current epoch still to run (all of them, or those after a resume point)."""
+        epoch, done = self.state.epoch, self.state.batch_in_epoch
+        self.loader.set_epoch(epoch)  # accelerate's epoch counter; it passes it to the sampler
+        self.sampler.set_epoch(epoch)
+        self.train_set.set_epoch(epoch)
+        return self.accelerator.skip_first_batches(self.loader, done) if done else self.loader
+
+    def _after_step(self, logs: dict[str, float], samples: int) -> None:
+        """Count the step; log every ``log_every`` steps; validate and checkpoint every ``save_every``."""
+        state, config = self.state, self.config
+        state.step += 1
+        state.batch_in_epoch += 1
+        self.window.append({**logs, "samples": samples})
+        self.bar.update(1)
+        last = state.step == self.total
+        if state.step % config.log_every == 0 or last:
+            now = time.perf_counter()
+            row = _summarise(self.window, now - self.tick)
+            self.metrics.write({**row, "split": "train", "step": state.step, "epoch": state.epoch})
+            self.bar.set_postfix(loss=f"{row['loss']:.3f}")
+            self.window, self.tick = [], now
+        if state.step % config.save_every == 0 or last:
+            if self.val_loader is not None:
+                self.val_metrics = evaluate(self.model, self.val_loader, self.accelerator, config.val_batches)
+                self.metrics.write({"split": "val", "step": state.step, **self.val_metrics})
+            _save(self.accelerator, self.model, self.out, state, config.keep_checkpoints)
+            self.tick = time.perf_counter()  # checkpoints and validation are not training speed
 
 
 RESUME_MAY_CHANGE = ("num_workers", "log_every")  # settings that do not change what is trained
@@ -437,21 +432,29 @@ def _save(accelerator: Any, model: Any, out: Path, state: TrainState, keep: int)
 
 
 class _MetricsLog:
-    """``metrics.jsonl`` (lines past ``resume_step`` from an interrupted run are dropped) + TensorBoard."""
+    """``OUT/metrics.jsonl`` and the same scalars in ``OUT/tensorboard``, on the main process only; the
+    lines and events past ``resume_step`` (from an interrupted run) are dropped."""
 
-    def __init__(self, path: Path, resume_step: int, enabled: bool) -> None:
-        self.path, self.enabled = path, enabled
-        if enabled and path.is_file():
-            lines = [ln for ln in path.read_text().splitlines() if ln]
+    def __init__(self, out: Path, resume_step: int, enabled: bool) -> None:
+        from torch.utils.tensorboard import SummaryWriter
+
+        self.path, self.enabled = out / "metrics.jsonl", enabled
+        self.writer = SummaryWriter(str(out / "tensorboard"), purge_step=resume_step) if enabled else None
+        if enabled and self.path.is_file():
+            lines = [ln for ln in self.path.read_text().splitlines() if ln]
             kept = [ln for ln in lines if json.loads(ln)["step"] <= resume_step]
-            path.write_text("".join(ln + "\n" for ln in kept))
+            self.path.write_text("".join(ln + "\n" for ln in kept))
 
-    def write(self, row: dict[str, Any], writer: Any = None) -> None:
+    def write(self, row: dict[str, Any]) -> None:
         if not self.enabled:
             return
         with self.path.open("a") as f:
             f.write(json.dumps(row) + "\n")
-        if writer is not None:
+        if self.writer is not None:
             for key, value in row.items():
                 if isinstance(value, float):
-                    writer.add_scalar(f"{row['split']}/{key}", value, row["step"])
+                    self.writer.add_scalar(f"{row['split']}/{key}", value, row["step"])
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.close()
