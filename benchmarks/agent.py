@@ -95,6 +95,7 @@ def main() -> None:
         t_vision = timed(lambda: model.backbone.model.get_image_features(pixel_values=tiles), args.repeats)
     t_silent = timed(lambda: model.predict(batch, answers=answers), args.repeats)
     t_talk = timed(lambda: model.predict(batch, max_new_tokens=len(answer) - 1), args.repeats)
+    t_bare = timed(lambda: model.predict(batch, max_new_tokens=0), args.repeats)
     t_ctl = timed(lambda: ctl(cav, speed, path, wp), args.repeats)
     k = args.language_every
     amortised = t_rows + t_proc + (t_talk + (k - 1) * t_silent) / k + t_ctl
@@ -112,6 +113,10 @@ def main() -> None:
     )
     print(
         f"  predict, talking tick   {t_talk * 1e3:7.1f} ms  (vision + prefill + {len(answer)} decoding steps)"
+    )
+    print(
+        f"  predict, no answer      {t_bare * 1e3:7.1f} ms  "
+        "(max_new_tokens=0, for comparison: queries right after </s>, not the training layout)"
     )
     print(f"  controller              {t_ctl * 1e3:7.1f} ms")
     print(
