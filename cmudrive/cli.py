@@ -365,8 +365,18 @@ def evaluate(
     ] = "cmudrive44",
     agent: Annotated[
         str,
-        typer.Option(help="agent class as package.module:Class, or a bundled one: expert, autopilot, pid"),
+        typer.Option(
+            help="agent class as package.module:Class, or a bundled one: expert, autopilot, pid, "
+            "v2v-vla, v2v-vla-baseline"
+        ),
     ] = "expert",
+    checkpoint: Annotated[
+        Path | None,
+        typer.Option(
+            help="model checkpoint directory, passed to the agent's constructor as checkpoint=PATH "
+            "(v2v-vla: default the committed cmudrive/assets/models/v2v-vla-tiny)"
+        ),
+    ] = None,
     out: Annotated[Path, typer.Option(help="output folder")] = Path("out/eval"),
     workers: Annotated[
         int | None,
@@ -444,9 +454,17 @@ def evaluate(
             step_timeout=step_timeout,
             record_dir=out / "logs" if record else None,
             sensors=sensors,
+            agent_options={"checkpoint": str(checkpoint.resolve())} if checkpoint else {},
         )
     except ValueError as exc:
         _fail(ValueError(f"--step-timeout / --tick-cap: {exc}"))
+    if agent in ("v2v-vla", "v2v-vla-baseline"):  # a missing checkpoint fails here, not once per route
+        from cmudrive.agents.v2v_vla import resolve_checkpoint
+
+        try:
+            resolve_checkpoint(checkpoint, cooperative=agent == "v2v-vla")
+        except FileNotFoundError as exc:
+            _fail(exc)
     if executor == "ray":
         runner: LocalExecutor | RayExecutor = RayExecutor(ray_address)
     elif executor == "local":
@@ -733,6 +751,71 @@ def _print_results(merged: dict[str, Any]) -> None:
         f"driving score {s['driving_score']:.2f}, success rate {s['success_rate']:.2f} %, "
         f"{s['num_routes']} routes"
     )
+
+
+@app.command("train")
+def train_model(
+    data: Annotated[Path, typer.Option(help="dataset folder of <route>.parquet shards (data collect)")],
+    out: Annotated[Path, typer.Option(help="run folder: checkpoints, metrics.jsonl, tensorboard/, model/")],
+    config: Annotated[str, typer.Option(help="model configuration: tiny, small, internvl2-1b")] = "tiny",
+    baseline: Annotated[
+        bool, typer.Option(help="train the non-cooperative baseline (same data, size and budget)")
+    ] = False,
+    pretrained_path: Annotated[
+        Path | None, typer.Option(help="local InternVL checkpoint directory (internvl2-1b)")
+    ] = None,
+    resume: Annotated[bool, typer.Option(help="continue from OUT's last checkpoint")] = False,
+    epochs: Annotated[int, typer.Option(min=1, help="passes over the training routes")] = 1,
+    max_steps: Annotated[
+        int | None, typer.Option(min=1, help="optimizer steps (instead of --epochs)")
+    ] = None,
+    batch_size: Annotated[int, typer.Option(min=1, help="rows per step and process")] = 8,
+    lr: Annotated[
+        float | None, typer.Option(help="peak learning rate (default: tiny 1e-3, internvl2-1b 3e-5)")
+    ] = None,
+    save_every: Annotated[int, typer.Option(min=1, help="checkpoint every N steps (and at the end)")] = 500,
+    log_every: Annotated[int, typer.Option(min=1, help="a metrics line every N steps")] = 10,
+    val_fraction: Annotated[float, typer.Option(help="share of the routes held out for validation")] = 0.1,
+    num_workers: Annotated[int, typer.Option(min=0, help="DataLoader worker processes")] = 0,
+    mixed_precision: Annotated[
+        str, typer.Option(help="auto (bf16/fp16 on GPUs, none on CPU), no, fp16, bf16")
+    ] = "auto",
+    augment_prob: Annotated[
+        float, typer.Option(help="share of training rows rotated by up to +-20 deg (0: off)")
+    ] = 0.5,
+    seed: Annotated[int, typer.Option(help="model initialisation, data order, augmentation, split")] = 0,
+) -> None:
+    """Train V2V-VLA (or --baseline) on a dataset folder; the same command on a CPU, one GPU or several
+    (accelerate launch -m cmudrive.cli train ...)."""
+    try:
+        from cmudrive.model.augment import YawAugment
+        from cmudrive.model.train import TrainConfig, train
+    except ImportError as exc:
+        _fail(ImportError(f"training needs the model extra (pip install -e '.[model]'): {exc}"))
+    try:
+        cfg = TrainConfig(
+            data=str(data),
+            out=str(out),
+            model=config,
+            cooperative=not baseline,
+            pretrained_path=str(pretrained_path) if pretrained_path else None,
+            epochs=epochs,
+            max_steps=max_steps,
+            batch_size=batch_size,
+            lr=lr,
+            save_every=save_every,
+            log_every=log_every,
+            val_fraction=val_fraction,
+            num_workers=num_workers,
+            mixed_precision=mixed_precision,
+            augment=YawAugment(prob=augment_prob),
+            seed=seed,
+        )
+        metrics = train(cfg, resume=resume)
+    except (OSError, ValueError) as exc:
+        _fail(exc)
+    shown = ", ".join(f"{k} {v:.3f}" for k, v in metrics.items())
+    console.print(f"model: {out / 'model'}" + (f"; validation: {shown}" if shown else ""))
 
 
 @app.command("report")

@@ -193,3 +193,22 @@ def test_a_batch_whose_image_tokens_do_not_match_its_tiles_is_rejected(model: V2
 def test_predict_refuses_a_training_batch(model: V2VVLA) -> None:
     with pytest.raises(ValueError, match="with_answer=False"):
         model.predict(model.processor(rows(1)))
+
+
+def test_predict_with_given_answers_equals_the_decoding_that_produced_them(model: V2VVLA) -> None:
+    """The closed loop's low-rate language: queries after an earlier answer, in one pass, give the
+    waypoints the decoding gave (rows with answers of different lengths in one batch)."""
+    prompts = [{k: v for k, v in r.items() if k != "commentary"} for r in rows(3)]
+    pred = model.predict(prompts, max_new_tokens=5)
+    answers = [
+        pred.answer_ids[0],
+        [*pred.answer_ids[1][:2], model.processor.eos_token_id],
+        pred.answer_ids[2],
+    ]
+    again = model.predict(prompts, answers=answers)
+    assert again.answer_ids == answers
+    assert torch.allclose(again.path[0], pred.path[0], atol=1e-4)
+    assert torch.allclose(again.speed_waypoints[2], pred.speed_waypoints[2], atol=1e-4)
+    assert not torch.allclose(again.path[1], pred.path[1], atol=1e-4) or len(pred.answer_ids[1]) <= 3
+    with pytest.raises(ValueError, match="answers for"):
+        model.predict(prompts, answers=answers[:2])

@@ -16,11 +16,13 @@ CARLA's (steer + = right).
 
 from __future__ import annotations
 
+import functools
 import importlib
+import inspect
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from enum import Enum
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
@@ -28,6 +30,8 @@ from cmudrive.maps import RoadMap, RoadOption, Route
 from cmudrive.sim.dynamics import Controls
 
 if TYPE_CHECKING:
+    from collections.abc import Callable, Mapping
+
     from cmudrive.sim.snapshot import Snapshot
 
 TARGET_SPACING = 50.0  # [m] at most between two sparse target points (leaderboard: every 50th point)
@@ -142,6 +146,8 @@ BUNDLED_AGENTS: dict[str, str] = {
     "expert": "cmudrive.agents.expert:ExpertAgent",
     "autopilot": "cmudrive.agents.autopilot:AutopilotAgent",
     "pid": "cmudrive.agents.pid:PidAgent",
+    "v2v-vla": "cmudrive.agents.v2v_vla:V2VVLAAgent",  # needs the model extra and a checkpoint
+    "v2v-vla-baseline": "cmudrive.agents.v2v_vla:V2VVLABaselineAgent",
 }
 
 
@@ -165,6 +171,20 @@ def load_agent_class(spec: str) -> type[Agent]:
             f"agent {spec!r}: {class_name!r} in {module_name} is not a cmudrive Agent subclass"
         )
     return cls
+
+
+def agent_factory(cls: type[Agent], options: Mapping[str, Any] | None = None) -> Callable[[], Agent]:
+    """What makes the agent: ``cls(**options)`` (``EvalConfig.agent_options``, e.g. ``checkpoint=PATH``),
+    checked against the constructor's signature now, so that an option it does not take fails before any
+    route starts."""
+    if not options:
+        return cls
+    try:
+        inspect.signature(cls).bind(**options)
+    except TypeError as exc:
+        names = sorted(options)
+        raise AgentSetupError(f"agent {cls.__name__} does not take the options {names}: {exc}") from exc
+    return functools.partial(cls, **options)
 
 
 def sparse_plan(cav_id: str, route: Route, privileged: bool, spacing: float = TARGET_SPACING) -> CavPlan:

@@ -57,3 +57,74 @@ def heading_error(pos: np.ndarray, yaw: np.ndarray, target: np.ndarray) -> np.nd
     fwd = rel[:, 0] * np.cos(yaw) + rel[:, 1] * np.sin(yaw)
     left = -rel[:, 0] * np.sin(yaw) + rel[:, 1] * np.cos(yaw)
     return np.degrees(np.arctan2(-left, fwd)) / 90.0
+
+
+# ---- SimLingo's waypoint controller: predicted path + speed waypoints (ego frame) -> controls ---------
+SPEED_WAYPOINT_DT = 0.25  # [s] between speed waypoints (the model's 10 waypoints cover 2.5 s)
+BRAKE_SPEED = 0.4  # [m/s] desired speed below this: brake
+OVERSPEED = 1.1  # brake when speed / desired speed exceeds this
+MAX_SPEED_ERROR = 1.0  # [m/s] the throttle PID sees clip(desired - speed, 0, this)
+STOPPED_SPEED = 0.1  # [m/s] below this a CAV counts as standing (for creeping)
+CREEP_AFTER = 800  # [ticks] standing this long (40 s) starts a creep
+CREEP_TICKS = 15  # [ticks] a creep lasts this long
+CREEP_THROTTLE = 0.4  # [-] throttle at least this during a creep, no brake
+
+
+def desired_speed(speed_waypoints: np.ndarray) -> np.ndarray:
+    """(n,) [m/s]: distance between the 0.25 s and 0.75 s waypoints (n, >= 3, 2) over the 0.5 s between."""
+    return np.linalg.norm(speed_waypoints[:, 2] - speed_waypoints[:, 0], axis=-1) / (2 * SPEED_WAYPOINT_DT)
+
+
+def point_along(path: np.ndarray, distance: np.ndarray) -> np.ndarray:
+    """(n, 2) the point ``distance`` (n,) [m] along each polyline that starts at the origin and runs through
+    ``path`` (n, P, 2): the look-ahead point of SimLingo's path resampled every 0.1 m (its last point when the
+    path is shorter)."""
+    n = len(path)
+    poly = np.concatenate([np.zeros((n, 1, 2)), path], axis=1)  # (n, P+1, 2) from the ego's centre
+    seg = np.linalg.norm(np.diff(poly, axis=1), axis=-1)  # (n, P)
+    cum = np.concatenate([np.zeros((n, 1)), np.cumsum(seg, axis=1)], axis=1)  # (n, P+1)
+    d = np.minimum(distance, cum[:, -1])
+    j = np.clip((cum[:, 1:] < d[:, None]).sum(axis=1), 0, seg.shape[1] - 1)  # (n,) segment holding d
+    rows = np.arange(n)
+    t = np.where(seg[rows, j] > 0, (d - cum[rows, j]) / np.maximum(seg[rows, j], 1e-9), 0.0)
+    return poly[rows, j] + t[:, None] * (poly[rows, j + 1] - poly[rows, j])
+
+
+class WaypointController:
+    """Controls from a predicted path and speed waypoints (ego frame, x forward, y left), SimLingo's rules
+    (``reference/MODEL_AND_EXPERT.md``): desired speed from the 0.25 s and 0.75 s speed waypoints; brake
+    when it is below 0.4 m/s or exceeded by 10 %; throttle a windowed PID (kp 1.75, ki 1.0, kd 2.0, 20
+    ticks) on the clipped speed error; steering a windowed PID (kp 3.118, ki 0.641, kd 1.378, 6 ticks) on
+    the heading error to the look-ahead point on the path; a creep after 40 s standing. One history row
+    per CAV of the route."""
+
+    def __init__(self, num_cavs: int) -> None:
+        self.steer_pid = WindowedPid(num_cavs, *STEER_GAINS)
+        self.speed_pid = WindowedPid(num_cavs, *SPEED_GAINS)
+        self.stopped = np.zeros(num_cavs, np.int64)  # [ticks] standing
+        self.creep = np.zeros(num_cavs, np.int64)  # [ticks] of creep left
+
+    def __call__(
+        self, rows: np.ndarray, speed: np.ndarray, path: np.ndarray, speed_waypoints: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(steer, throttle, brake), each (n,), for CAVs ``rows`` at ``speed`` (n,) [m/s] with predicted
+        ``path`` (n, P, 2) and ``speed_waypoints`` (n, 10, 2) [m]."""
+        target = point_along(path, lookahead_distance(speed))
+        zeros = np.zeros(len(rows))
+        steer = np.clip(
+            self.steer_pid(rows, heading_error(np.zeros((len(rows), 2)), zeros, target)), -1.0, 1.0
+        )
+        desired = desired_speed(speed_waypoints)
+        brake = (desired < BRAKE_SPEED) | (speed > OVERSPEED * desired)
+        error = np.clip(desired - speed, 0.0, MAX_SPEED_ERROR)
+        throttle = np.where(brake, 0.0, np.clip(self.speed_pid(rows, error), 0.0, 1.0))
+        # creep: a CAV that has stood for CREEP_AFTER ticks rolls for CREEP_TICKS
+        self.stopped[rows] = np.where(speed < STOPPED_SPEED, self.stopped[rows] + 1, 0)
+        start = self.stopped[rows] > CREEP_AFTER
+        self.creep[rows] = np.where(start, CREEP_TICKS, self.creep[rows])
+        self.stopped[rows] = np.where(start, 0, self.stopped[rows])
+        creeping = self.creep[rows] > 0
+        self.creep[rows] = np.maximum(self.creep[rows] - 1, 0)
+        throttle = np.where(creeping, np.maximum(throttle, CREEP_THROTTLE), throttle)
+        brake = brake & ~creeping
+        return steer, throttle, brake.astype(np.float64)

@@ -18,6 +18,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -69,6 +70,8 @@ class EvalConfig:
     sensors: SensorConfig = field(default_factory=SensorConfig)
     scenarios: ScenarioConfig = field(default_factory=ScenarioConfig)
     record_dir: Path | None = None  # write a replayable log per route here
+    # keyword arguments of the agent's constructor, e.g. {"checkpoint": "runs/a/model"} (--checkpoint)
+    agent_options: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.tick_cap < 1:

@@ -42,7 +42,7 @@ from multiprocessing import get_context
 from pathlib import Path
 from typing import Any, Protocol
 
-from cmudrive.agents.base import Agent, AgentSetupError, load_agent_class
+from cmudrive.agents.base import Agent, AgentSetupError, agent_factory, load_agent_class
 from cmudrive.bench.evaluator import AgentCrash, EvalConfig, RouteHooks, evaluate_route
 from cmudrive.bench.metrics import route_result, route_status, summarize
 from cmudrive.bench.records import (
@@ -103,10 +103,10 @@ def run_task(task: RouteTask, progress: Any = None, hooks: RouteHooks | None = N
             progress.put((task.spec.id, tick))
 
     try:
-        agent_cls = load_agent_class(task.agent)
+        make_agent = agent_factory(load_agent_class(task.agent), task.config.agent_options)
         if task.job is not None:
-            return task.job(task.spec, agent_cls, task.config, replace(hooks, tick=on_tick))
-        return evaluate_route(task.spec, agent_cls, task.config, hooks=replace(hooks, tick=on_tick))
+            return task.job(task.spec, make_agent, task.config, replace(hooks, tick=on_tick))
+        return evaluate_route(task.spec, make_agent, task.config, hooks=replace(hooks, tick=on_tick))
     except Exception as exc:
         return crashed_record(task.spec, exc)
 
@@ -376,7 +376,8 @@ def run_evaluation(
 
     Without ``resume``, ``out`` must not hold route records yet (:class:`OutputFolderError`)."""
     agent_spec = agent if isinstance(agent, str) else f"{agent.__module__}:{agent.__qualname__}"
-    load_agent_class(agent_spec)  # fail fast, before any worker starts
+    config = config or EvalConfig()
+    agent_factory(load_agent_class(agent_spec), config.agent_options)  # fail fast, before any worker starts
     if not routes:
         raise ValueError("no route to run")
     ids = [spec.id for spec in routes]
@@ -392,7 +393,6 @@ def run_evaluation(
     if max_memory is not None and not max_memory > 0.0:
         raise ValueError(f"max_memory must be a positive number of GiB, got {max_memory}")
     out.mkdir(parents=True, exist_ok=True)
-    config = config or EvalConfig()
     skip = finished_route_ids(out, ids) if resume else set()
     tasks = [RouteTask(spec, agent_spec, config, max_memory) for spec in routes if spec.id not in skip]
     for result in executor.run(tasks, on_progress):

@@ -26,8 +26,11 @@ SPEED_STEP_TICKS = 5  # [ticks of 0.05 s] = 0.25 s between speed waypoints
 MIN_STEP = 1e-6  # [m] a polyline point this close to the one before is dropped (standing still)
 
 
-def to_ego(xy: np.ndarray, x: float, y: float, yaw: float) -> np.ndarray:
-    """(..., 2) map-frame points -> the frame of a vehicle at (x, y) heading ``yaw`` (x forward, y left)."""
+def to_ego(
+    xy: np.ndarray, x: float | np.ndarray, y: float | np.ndarray, yaw: float | np.ndarray
+) -> np.ndarray:
+    """(..., 2) map-frame points -> the frame of a vehicle at (x, y) heading ``yaw`` (x forward, y left);
+    x, y, yaw may be arrays that broadcast against ``xy[..., 0]``."""
     c, s = np.cos(yaw), np.sin(yaw)
     dx, dy = xy[..., 0] - x, xy[..., 1] - y
     return np.stack([c * dx + s * dy, -s * dx + c * dy], axis=-1)

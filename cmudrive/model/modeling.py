@@ -278,27 +278,38 @@ class V2VVLA(nn.Module):
     # ---- closed-loop inference ----------------------------------------------------------------------
     @torch.no_grad()
     def predict(
-        self, batch: VLABatch | list[dict[str, Any]], max_new_tokens: int | None = None
+        self,
+        batch: VLABatch | list[dict[str, Any]],
+        max_new_tokens: int | None = None,
+        answers: list[list[int]] | None = None,
     ) -> VLAPrediction:
         """Greedy text (until ``</s>`` or ``max_new_tokens``, default ``config.max_answer_tokens``), then
         the waypoint queries after it in the same KV cache: the layout the model was trained on. All CAVs
-        of a tick go in one batch. ``max_new_tokens=0`` skips the text (queries right after ``</s>``)."""
+        of a tick go in one batch. ``max_new_tokens=0`` skips the text (queries right after ``</s>``).
+        ``answers`` (one token list per row, ``</s>`` included, e.g. an earlier ``answer_ids``): no
+        decoding, the queries follow these answers in one pass (a closed loop that talks at a lower rate
+        than it drives)."""
         was_training = self.training
         self.eval()
         try:
             return self._predict(
-                batch, self.config.max_answer_tokens if max_new_tokens is None else max_new_tokens
+                batch, self.config.max_answer_tokens if max_new_tokens is None else max_new_tokens, answers
             )
         finally:
             self.train(was_training)
 
-    def _predict(self, batch: VLABatch | list[dict[str, Any]], max_new_tokens: int) -> VLAPrediction:
+    def _predict(
+        self, batch: VLABatch | list[dict[str, Any]], max_new_tokens: int, answers: list[list[int]] | None
+    ) -> VLAPrediction:
         device = self.waypoint_queries.device
         batch = (self.processor(batch, with_answer=False) if isinstance(batch, list) else batch).to(device)
         if batch.labels is not None:
             raise ValueError("predict takes prompts: batch the rows with processor(rows, with_answer=False)")
         b, q = len(batch), self.waypoint_queries.shape[0]
-        answer, keep, cache, mask = self._greedy(batch, max_new_tokens)  # (B, n), (B, n), cache, (B, L+n)
+        if answers is None:
+            answer, keep, cache, mask = self._greedy(batch, max_new_tokens)  # (B, n), (B, n), cache, (B, L+n)
+        else:
+            answer, keep, cache, mask = self._given(batch, answers)
         mask = torch.cat([mask, mask.new_ones(b, q)], dim=1)  # (B, L+n+Q)
         lm = self.backbone.model.language_model
         states = lm(
@@ -314,6 +325,26 @@ class V2VVLA(nn.Module):
         return VLAPrediction(
             path=path, speed_waypoints=speed, text=text, partner=partner, answer_ids=answer_ids
         )
+
+    def _given(
+        self, batch: VLABatch, answers: list[list[int]]
+    ) -> tuple[torch.Tensor, torch.Tensor, Any, torch.Tensor]:
+        """Prompt + the given answers in one pass, the same layout ``_greedy`` leaves: answers right-padded
+        with masked padding (B, n), so the queries after them see exactly these tokens."""
+        if len(answers) != len(batch) or any(len(a) == 0 for a in answers):
+            raise ValueError(f"{len(answers)} answers for {len(batch)} rows (each needs at least </s>)")
+        lm, embed = self.backbone.model.language_model, self.backbone.get_input_embeddings()
+        device = batch.input_ids.device
+        n = max(len(a) for a in answers)
+        answer = torch.full((len(batch), n), self.processor.pad_token_id, dtype=torch.long, device=device)
+        keep = torch.zeros((len(batch), n), dtype=torch.bool, device=device)
+        for i, a in enumerate(answers):
+            answer[i, : len(a)] = torch.tensor(a, device=device)
+            keep[i, : len(a)] = True
+        mask = torch.cat([batch.attention_mask, keep.long()], dim=1)  # (B, L+n)
+        embeds = torch.cat([self.embed(batch), embed(answer)], dim=1)  # (B, L+n, H)
+        out = lm(inputs_embeds=embeds, attention_mask=mask, position_ids=positions(mask), use_cache=True)
+        return answer, keep, out.past_key_values, mask
 
     def _greedy(
         self, batch: VLABatch, max_new_tokens: int

@@ -1,0 +1,130 @@
+"""Closed-loop cost of the V2V-VLA agent per tick for 16 CAVs on the CPU, against the 50 ms budget
+(16 CAVs at 20 ticks/s), and where it goes.
+
+    python benchmarks/agent.py [--config tiny] [--cavs 16] [--threads 1] [--repeats 5] [--language-every 5]
+
+One tick of the agent (``cmudrive.agents.v2v_vla``), for a random ``tiny`` model and 16 CAVs that all see
+each other (8 other CAVs listed in every prompt, the prompt's longest form): building the rows (merged
+occupancy drawn as RGB), the processor (image tiles + tokens), the vision encoder alone, ``predict`` on a
+talking tick (greedy decoding of an answer as long as a typical commentary + communication sentence; a
+random model never stops by itself, so its length is forced) and on a silent tick (the queries after the
+cached answer, one pass), and the controller. Median of ``--repeats`` after a warm-up. The amortised
+tick is one talking tick and ``language_every - 1`` silent ones.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import time
+from collections.abc import Callable
+
+import numpy as np
+import torch
+
+from cmudrive.agents.control import WaypointController
+from cmudrive.model import V2VVLA, get_config
+from cmudrive.sensors.occupancy import occupancy_to_rgb
+
+ANSWER = (
+    "Turn left at the junction ahead. Slow down behind the red car ahead on the left. "
+    "Communication: CAV 3 can see the pedestrian, which is hidden from our camera."
+)  # a long answer of the dataset's kind
+
+
+def timed(fn: Callable[[], object], repeats: int) -> float:
+    fn()  # warm-up
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--config", default="tiny")
+    parser.add_argument("--cavs", type=int, default=16)
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--language-every", type=int, default=5)
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    torch.manual_seed(0)
+    rng = np.random.default_rng(0)
+    n = args.cavs
+    model = V2VVLA.from_config(get_config(args.config)).eval()
+    camera = rng.integers(0, 256, (n, 128, 256, 3), dtype=np.uint8)
+    occupancy = rng.random((n, 4, 192, 128)) < 0.02
+    others = [
+        [[float(k), 5.0 + 4.0 * k, 3.0 * (k % 3 - 1), 0.0] for k in range(n) if k != i] for i in range(n)
+    ]
+
+    def build_rows() -> list[dict]:
+        bev = occupancy_to_rgb(occupancy)
+        return [
+            {
+                "camera": camera[i],
+                "merged_bev": bev[i],
+                "speed": 6.0,
+                "target_points": np.array([[25.0, 0.0], [60.0, 4.0]], np.float32),
+                "other_cavs": others[i],
+            }
+            for i in range(n)
+        ]
+
+    rows = build_rows()
+    answer = [
+        *model.tokenizer(" " + ANSWER, add_special_tokens=False)["input_ids"],
+        model.processor.eos_token_id,
+    ]
+    answers = [answer] * n
+    batch = model.processor(rows)
+    tiles = batch.pixel_values.flatten(0, 1)
+    ctl = WaypointController(n)
+    path = np.repeat(np.stack([np.arange(1.0, 21.0), np.zeros(20)], 1)[None], n, 0)
+    wp = np.repeat(np.stack([np.arange(1.0, 11.0) * 1.5, np.zeros(10)], 1)[None], n, 0)
+    cav = np.arange(n)
+    speed = np.full(n, 5.0)
+
+    t_rows = timed(build_rows, args.repeats)
+    t_proc = timed(lambda: model.processor(rows), args.repeats)
+    with torch.no_grad():
+        t_vision = timed(lambda: model.backbone.model.get_image_features(pixel_values=tiles), args.repeats)
+    t_silent = timed(lambda: model.predict(batch, answers=answers), args.repeats)
+    t_talk = timed(lambda: model.predict(batch, max_new_tokens=len(answer) - 1), args.repeats)
+    t_bare = timed(lambda: model.predict(batch, max_new_tokens=0), args.repeats)
+    t_ctl = timed(lambda: ctl(cav, speed, path, wp), args.repeats)
+    k = args.language_every
+    amortised = t_rows + t_proc + (t_talk + (k - 1) * t_silent) / k + t_ctl
+    load = os.getloadavg()
+    print(
+        f"{args.config}, {n} CAVs, prompt {batch.input_ids.shape[1]} tokens per row, "
+        f"answer {len(answer)} tokens"
+    )
+    print(f"  rows (BEV drawn)        {t_rows * 1e3:7.1f} ms")
+    print(f"  processor               {t_proc * 1e3:7.1f} ms")
+    print(f"  vision encoder alone    {t_vision * 1e3:7.1f} ms  ({tiles.shape[0]} tiles)")
+    print(
+        f"  predict, silent tick    {t_silent * 1e3:7.1f} ms  "
+        "(vision + one pass over prompt + answer + queries)"
+    )
+    print(
+        f"  predict, talking tick   {t_talk * 1e3:7.1f} ms  (vision + prefill + {len(answer)} decoding steps)"
+    )
+    print(
+        f"  predict, no answer      {t_bare * 1e3:7.1f} ms  "
+        "(max_new_tokens=0, for comparison: queries right after </s>, not the training layout)"
+    )
+    print(f"  controller              {t_ctl * 1e3:7.1f} ms")
+    print(
+        f"  amortised tick (language every {k}): {amortised * 1e3:.1f} ms = {amortised / 0.05:.1f}x the "
+        f"50 ms budget; {args.threads} torch threads, load average {load[0]:.2f}"
+    )
+    print(f"ms_per_tick={amortised * 1e3:.1f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,209 @@
+"""V2V-VLA in closed loop: one model drives every CAV of a route, all CAVs of a tick in one batch.
+
+Per tick, for the ``n`` active CAVs:
+
+1. each CAV's row, as the dataset has it: the front camera, the merged occupancy drawn as the RGB image
+   of the dataset (``occupancy_to_rgb``), its speed, the next two sparse route target points in its frame
+   (:class:`TargetPoints`: progress along the leaderboard-style sparse plan that every agent gets, no
+   privileged map) and the other CAVs' poses;
+2. one :meth:`~cmudrive.model.V2VVLA.predict` for all of them. Language is generated every
+   ``language_every`` ticks (default 5: the dataset's 4 Hz, the rate its commentary labels change at);
+   on the ticks between, the waypoint queries follow the last generated answer in one pass without
+   decoding (``predict(answers=...)``), which is the layout the model was trained on, at the cost of a
+   forward pass instead of tens of decoding steps;
+3. SimLingo's controller (:class:`~cmudrive.agents.control.WaypointController`) turns the waypoints into
+   steer, throttle and brake;
+4. the CAV named in each communication sentence becomes that CAV's partner from the next tick
+   (:meth:`next_partners`; -1, the default closest CAV in front, when it names none).
+
+The checkpoint: ``V2VVLAAgent(checkpoint=PATH)`` (``cmudrive eval --agent v2v-vla --checkpoint PATH``
+passes it through ``EvalConfig.agent_options``), else the committed one under
+``cmudrive/assets/models/v2v-vla-tiny/`` (``v2v-vla-baseline-tiny/`` for :class:`V2VVLABaselineAgent`).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+
+from cmudrive.agents.base import Agent, CavPlan, Observation, Observations, RouteSetup
+from cmudrive.agents.control import WaypointController
+from cmudrive.data.labels import to_ego
+from cmudrive.sensors.occupancy import occupancy_to_rgb
+from cmudrive.sim.dynamics import Controls
+
+MODELS = Path(__file__).resolve().parents[1] / "assets" / "models"
+DEFAULT_CHECKPOINT = MODELS / "v2v-vla-tiny"
+DEFAULT_BASELINE_CHECKPOINT = MODELS / "v2v-vla-baseline-tiny"
+LANGUAGE_EVERY = 5  # [ticks] generate language at 4 Hz (the dataset's sample rate)
+TARGET_MIN_AHEAD = 7.5  # [m] a target point closer than this along the route counts as reached (as the data)
+TARGET_SEARCH = 3  # [segments] of the sparse plan searched ahead of the last one for the CAV's progress
+
+
+def resolve_checkpoint(checkpoint: str | Path | None, cooperative: bool) -> Path:
+    """The checkpoint directory to load, or a FileNotFoundError that says what to do."""
+    default = DEFAULT_CHECKPOINT if cooperative else DEFAULT_BASELINE_CHECKPOINT
+    path = Path(checkpoint) if checkpoint is not None else default
+    if not (path / "vla_config.json").is_file():
+        flag = "" if cooperative else " --baseline"
+        hint = (
+            "no trained checkpoint is committed there yet"
+            if checkpoint is None
+            else "not a V2VVLA.save_pretrained directory"
+        )
+        raise FileNotFoundError(
+            f"V2V-VLA checkpoint {path}: {hint}. Train one (cmudrive train --data DIR --out runs/NAME"
+            f"{flag}) and pass --checkpoint runs/NAME/model"
+        )
+    return path
+
+
+class TargetPoints:
+    """The next two sparse target points of each CAV, from its progress along its sparse plan (the
+    polyline through ``CavPlan.target_points``; what the leaderboard gives agents): the first two points
+    more than ``TARGET_MIN_AHEAD`` metres of polyline beyond the CAV's projection on it, the last point
+    repeated at the end. Progress only moves forward, over at most ``TARGET_SEARCH`` segments a tick."""
+
+    def __init__(self, plans: tuple[CavPlan, ...]) -> None:
+        k = max(len(p.target_points) for p in plans)
+        self.points = np.zeros((len(plans), k, 2))  # (K, k, 2) map frame [m], padded with the last point
+        self.distance = np.zeros((len(plans), k))  # (K, k) [m] along the polyline, padded with +inf
+        self.count = np.array([len(p.target_points) for p in plans])
+        for i, p in enumerate(plans):
+            pts = np.asarray(p.target_points, np.float64)
+            self.points[i, : len(pts)], self.points[i, len(pts) :] = pts, pts[-1]
+            d = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+            self.distance[i, : len(pts)], self.distance[i, len(pts) :] = d, np.inf
+        self.segment = np.zeros(len(plans), np.int64)  # the segment each CAV was last projected on
+
+    def progress(self, rows: np.ndarray, pos: np.ndarray) -> np.ndarray:
+        """(n,) [m] along the plan of CAVs ``rows`` at ``pos`` (n, 2); advances their segments."""
+        last = np.maximum(self.count[rows] - 2, 0)  # last segment index per CAV
+        seg = np.minimum(self.segment[rows][:, None] + np.arange(TARGET_SEARCH)[None, :], last[:, None])
+        r = rows[:, None]
+        a, b = self.points[r, seg], self.points[r, np.minimum(seg + 1, self.count[rows][:, None] - 1)]
+        ab = b - a
+        length2 = np.maximum((ab**2).sum(-1), 1e-9)
+        t = np.clip(((pos[:, None] - a) * ab).sum(-1) / length2, 0.0, 1.0)  # (n, S)
+        dist = np.linalg.norm(a + t[..., None] * ab - pos[:, None], axis=-1)
+        best = np.argmin(dist, axis=1)
+        n = np.arange(len(rows))
+        self.segment[rows] = seg[n, best]
+        return self.distance[rows, seg[n, best]] + t[n, best] * np.sqrt(length2[n, best])
+
+    def next_two(self, rows: np.ndarray, pos: np.ndarray) -> np.ndarray:
+        """(n, 2, 2) the next two target points (map frame) of CAVs ``rows`` at ``pos`` (n, 2)."""
+        s = self.progress(rows, pos)
+        ahead = self.distance[rows] > (s + TARGET_MIN_AHEAD)[:, None]  # (n, k), padding is +inf: True
+        first = np.where(ahead.any(axis=1), np.argmax(ahead, axis=1), self.count[rows] - 1)
+        first = np.minimum(first, self.count[rows] - 1)
+        second = np.minimum(first + 1, self.count[rows] - 1)
+        return np.stack([self.points[rows, first], self.points[rows, second]], axis=1)
+
+
+class V2VVLAAgent(Agent):
+    """The cooperative V2V-VLA: camera + merged occupancy + other CAVs in, waypoints + language out."""
+
+    observations: ClassVar[frozenset[Observation]] = frozenset(
+        {Observation.EGO_STATE, Observation.CAMERA, Observation.MERGED_OCCUPANCY}
+    )
+    cooperative: ClassVar[bool] = True
+
+    def __init__(
+        self,
+        checkpoint: str | Path | None = None,
+        language_every: int = LANGUAGE_EVERY,
+        max_new_tokens: int | None = None,
+        device: str | None = None,
+    ) -> None:
+        """``checkpoint``: a ``V2VVLA.save_pretrained`` directory (default: the committed one);
+        ``max_new_tokens``: cap on generated answer tokens (default: the model's ``max_answer_tokens``)."""
+        if language_every < 1:
+            raise ValueError(f"language_every must be >= 1 tick, got {language_every}")
+        self.checkpoint = resolve_checkpoint(checkpoint, self.cooperative)
+        self.language_every = language_every
+        self.max_new_tokens = max_new_tokens
+        self.device = device
+        self.model: Any = None
+        self.last_text: list[str] = []
+
+    def setup(self, route: RouteSetup) -> None:
+        if self.model is None:
+            import torch
+
+            from cmudrive.model.modeling import V2VVLA
+
+            device = self.device or ("cuda" if torch.cuda.is_available() else "cpu")
+            self.model = V2VVLA.from_pretrained(self.checkpoint, device=device).eval()
+            if self.model.config.cooperative != self.cooperative:
+                kind = "cooperative" if self.model.config.cooperative else "baseline"
+                raise ValueError(
+                    f"{self.checkpoint} holds a {kind} model; use the "
+                    f"{'v2v-vla' if self.model.config.cooperative else 'v2v-vla-baseline'} agent"
+                )
+        k = len(route.cavs)
+        self.targets = TargetPoints(route.cavs)
+        self.controller = WaypointController(k)
+        self.answers: list[list[int] | None] = [None] * k  # last generated answer ids per CAV
+        self.last_text = [""] * k
+        self.requested = np.full(k, -1, np.int64)  # partner named by each CAV's last sentence
+        self.cav_index = np.zeros(0, np.int64)
+
+    def rows(self, obs: Observations) -> list[dict[str, Any]]:
+        """The model's input rows of the active CAVs (the dataset's columns)."""
+        assert obs.camera is not None and obs.other_cavs is not None
+        pos = np.stack([obs.x, obs.y], axis=1)
+        targets = to_ego(
+            self.targets.next_two(obs.cav_index, pos), obs.x[:, None], obs.y[:, None], obs.yaw[:, None]
+        )
+        bev = None
+        if self.cooperative:
+            assert obs.merged_occupancy is not None
+            bev = occupancy_to_rgb(obs.merged_occupancy)  # (n, H, W, 3), the dataset's merged_bev
+        out = []
+        for a in range(len(obs.cav_index)):
+            rel = obs.other_cavs[a]
+            others = [[float(j), *map(float, rel[j])] for j in np.flatnonzero(~np.isnan(rel[:, 0]))]
+            row = {
+                "camera": obs.camera[a],
+                "speed": float(obs.speed[a]),
+                "target_points": targets[a].astype(np.float32),
+                "other_cavs": others,
+            }
+            if bev is not None:
+                row["merged_bev"] = bev[a]
+            out.append(row)
+        return out
+
+    def run_step(self, obs: Observations) -> Controls:
+        idx = np.asarray(obs.cav_index, np.int64)
+        self.cav_index = idx
+        if len(idx) == 0:
+            return Controls(steer=np.zeros(0), throttle=np.zeros(0), brake=np.zeros(0))
+        cached = [self.answers[int(k)] for k in idx]
+        talk = obs.tick % self.language_every == 0 or any(a is None for a in cached)
+        if talk:
+            pred = self.model.predict(self.rows(obs), max_new_tokens=self.max_new_tokens)
+            for a, k in enumerate(idx):
+                self.answers[int(k)] = pred.answer_ids[a]
+                self.last_text[int(k)] = pred.text[a]
+                self.requested[int(k)] = pred.partner[a] if self.cooperative else -1
+        else:
+            pred = self.model.predict(self.rows(obs), answers=cached)
+        path = pred.path.float().cpu().numpy().astype(np.float64)  # (n, 20, 2) ego frame [m]
+        speed_wp = pred.speed_waypoints.float().cpu().numpy().astype(np.float64)  # (n, 10, 2)
+        steer, throttle, brake = self.controller(idx, np.asarray(obs.speed, np.float64), path, speed_wp)
+        return Controls(steer=steer, throttle=throttle, brake=brake)
+
+    def next_partners(self) -> np.ndarray | None:
+        """The CAV each active CAV's last sentence named (-1: the default partner)."""
+        return self.requested[self.cav_index] if self.cooperative else None
+
+
+class V2VVLABaselineAgent(V2VVLAAgent):
+    """The non-cooperative baseline (SimLingo's inputs): camera, speed and target points only."""
+
+    observations: ClassVar[frozenset[Observation]] = frozenset({Observation.EGO_STATE, Observation.CAMERA})
+    cooperative: ClassVar[bool] = False

@@ -1,0 +1,460 @@
+"""Training V2V-VLA (``cmudrive train``): Parquet shards in, checkpoints, metrics and TensorBoard logs out.
+
+The same code runs on a CPU, one GPU or several (``accelerate launch cmudrive train ...``): Hugging Face
+``accelerate`` places the model, shards the batches and handles mixed precision; there is no distributed
+code of our own. The recipe is SimLingo's (``reference/MODEL_AND_EXPERT.md``): AdamW (weight decay 0.1),
+a one-cycle schedule with 5 % warm-up, gradient clipping at 0.3, fp16/bf16 on GPUs, camera-rotation
+augmentation (:mod:`cmudrive.model.augment`). The learning rate defaults per configuration
+(:data:`DEFAULT_LR`).
+
+Output folder ``OUT``::
+
+    OUT/train_config.json          the TrainConfig (a resume must match it)
+    OUT/metrics.jsonl              one JSON line per logged step ({"split": "train"|"val", "step", ...})
+    OUT/tensorboard/               the same scalars for TensorBoard
+    OUT/checkpoints/step_000500/   accelerate state (model, optimizer, scheduler, RNG) + state.json
+    OUT/model/                     the final weights (V2VVLA.save_pretrained), also in each checkpoint
+
+Data: ``datasets.load_dataset("parquet", data_dir=DIR)``; whole routes are held out for validation
+(``val_fraction`` of the route ids, drawn with the seed), never single samples of a route that also
+trains. Images are decoded per row when a row is read, in the loader's workers.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import math
+import shutil
+import time
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch.utils.data import DataLoader, Dataset, Sampler
+
+from cmudrive.model.augment import YawAugment, rotate_sample
+from cmudrive.model.config import ModelConfig, get_config
+from cmudrive.model.modeling import V2VVLA
+from cmudrive.model.processor import VLABatch
+
+# SimLingo's 3e-5 is a fine-tuning rate for a pretrained 1B model (LoRA on the LLM). tiny and small start
+# from random weights: 1e-3 is the usual rate for transformers of a few million parameters trained from
+# scratch (nanoGPT's character-level model); 3e-4 for tens of millions (see docs/model.md, "Training").
+DEFAULT_LR: dict[str, float] = {"tiny": 1e-3, "small": 3e-4, "internvl2-1b": 3e-5}
+COLUMNS = (
+    "route_id",
+    "camera",
+    "merged_bev",
+    "speed",
+    "target_points",
+    "other_cavs",
+    "path",
+    "speed_waypoints",
+    "commentary",
+    "communication",
+    "partner_label",
+)
+CHECKPOINTS = "checkpoints"
+FINAL = "model"
+STATE = "state.json"
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """One training run: ``epochs`` passes over the training routes, or ``max_steps`` optimizer steps when
+    given (then as many epochs as that takes)."""
+
+    data: str  # folder of <route>.parquet shards
+    out: str  # output folder
+    model: str = "tiny"  # named configuration (cmudrive.model.get_config)
+    cooperative: bool = True  # False: the non-cooperative baseline (same data, size and budget)
+    pretrained_path: str | None = None  # for internvl2-1b: the local InternVL checkpoint
+    epochs: int = 1
+    max_steps: int | None = None
+    batch_size: int = 8  # per process
+    lr: float | None = None  # None: DEFAULT_LR of the configuration
+    weight_decay: float = 0.1
+    warmup: float = 0.05  # [-] share of the steps spent warming up (one-cycle pct_start)
+    grad_clip: float = 0.3  # max global gradient norm
+    save_every: int = 500  # [steps] checkpoint interval (and one at the end)
+    keep_checkpoints: int = 3  # the newest ones are kept
+    log_every: int = 10  # [steps]
+    val_fraction: float = 0.1  # [-] share of the routes held out
+    val_batches: int = 50  # at most this many batches per validation
+    seed: int = 0
+    num_workers: int = 0  # DataLoader worker processes (image decoding, augmentation, tokenising)
+    mixed_precision: str = "auto"  # auto (bf16 or fp16 on GPUs, none on CPU), no, fp16, bf16
+    augment: YawAugment = field(default_factory=YawAugment)
+
+    def __post_init__(self) -> None:
+        if self.mixed_precision not in ("auto", "no", "fp16", "bf16"):
+            raise ValueError(f"mixed_precision must be auto, no, fp16 or bf16, got {self.mixed_precision!r}")
+        if not 0.0 <= self.val_fraction < 1.0:
+            raise ValueError(f"val_fraction must be in [0, 1), got {self.val_fraction}")
+        for name in ("epochs", "batch_size", "save_every", "log_every", "keep_checkpoints"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.max_steps is not None and self.max_steps < 1:
+            raise ValueError(f"max_steps must be >= 1, got {self.max_steps}")
+
+    @property
+    def learning_rate(self) -> float:
+        return self.lr if self.lr is not None else DEFAULT_LR.get(self.model, 3e-5)
+
+    def model_config(self) -> ModelConfig:
+        extra = {"pretrained_path": self.pretrained_path} if self.pretrained_path else {}
+        return get_config(self.model, cooperative=self.cooperative, **extra)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> TrainConfig:
+        data = dict(data)
+        data["augment"] = YawAugment(**data.get("augment", {}))
+        return cls(**data)
+
+
+# ---- data -------------------------------------------------------------------------------------------
+def load_split(config: TrainConfig) -> tuple[Any, Any, list[str]]:
+    """(train, validation, validation route ids): the shards of ``config.data`` split by route."""
+    from cmudrive.data.shards import load_shards
+
+    ds = load_shards(config.data, COLUMNS)  # datasets' parquet loader over DIR/<route>.parquet
+    route_of = np.asarray(ds["route_id"])
+    val_routes = split_routes(sorted(set(route_of.tolist())), config.val_fraction, config.seed)
+    is_val = np.isin(route_of, val_routes)
+    return ds.select(np.flatnonzero(~is_val)), ds.select(np.flatnonzero(is_val)), val_routes
+
+
+def split_routes(routes: Sequence[str], val_fraction: float, seed: int) -> list[str]:
+    """The held-out route ids: ``ceil(val_fraction * routes)``, drawn with ``seed``; none when there is only
+    one route (it must train)."""
+    if val_fraction == 0.0 or len(routes) < 2:
+        return []
+    n = min(len(routes) - 1, math.ceil(val_fraction * len(routes)))
+    pick = np.random.default_rng(seed).permutation(len(routes))[:n]
+    return sorted(routes[i] for i in pick)
+
+
+class DrivingDataset(Dataset):
+    """Rows of an Arrow-backed ``datasets.Dataset`` as dicts, images decoded when a row is read; training
+    rows are rotated (:class:`YawAugment`) with a generator seeded by (seed, epoch, index), so a row's
+    augmentation does not depend on workers, order or resumption."""
+
+    def __init__(self, table: Any, augment: YawAugment | None = None, seed: int = 0) -> None:
+        self.table = table
+        self.augment = augment
+        self.seed = seed
+        self.epoch = 0
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = epoch
+
+    def __len__(self) -> int:
+        return len(self.table)
+
+    def __getitem__(self, index: int) -> dict[str, Any]:
+        row = dict(self.table[int(index)])
+        if self.augment is not None:
+            rng = np.random.default_rng([self.seed, self.epoch, int(index)])
+            row = rotate_sample(row, self.augment.draw(rng))
+        return row
+
+
+class EpochSampler(Sampler[int]):
+    """A permutation per epoch from (seed, epoch): the same on every process, reproducible on resume."""
+
+    def __init__(self, size: int, seed: int, shuffle: bool = True) -> None:
+        self.size, self.seed, self.shuffle = size, seed, shuffle
+        self.epoch = 0
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = epoch
+
+    def __len__(self) -> int:
+        return self.size
+
+    def __iter__(self) -> Iterator[int]:
+        if not self.shuffle:
+            return iter(range(self.size))
+        return iter(np.random.default_rng([self.seed, self.epoch]).permutation(self.size).tolist())
+
+
+# ---- training ---------------------------------------------------------------------------------------
+@dataclass
+class TrainState:
+    """Where a run is: saved with every checkpoint (``state.json``)."""
+
+    step: int = 0  # optimizer steps done
+    epoch: int = 0  # current epoch
+    batch_in_epoch: int = 0  # batches of the current epoch already consumed
+
+
+def mixed_precision(choice: str) -> str:
+    """``auto``: bf16 on GPUs that have it, else fp16 on GPUs; none on the CPU."""
+    if choice != "auto":
+        return choice
+    if not torch.cuda.is_available():
+        return "no"
+    return "bf16" if torch.cuda.is_bf16_supported() else "fp16"
+
+
+def latest_checkpoint(out: Path) -> Path | None:
+    found = sorted((out / CHECKPOINTS).glob("step_*"), key=lambda p: int(p.name.split("_")[1]))
+    done = [p for p in found if (p / STATE).is_file()]
+    return done[-1] if done else None
+
+
+def train(config: TrainConfig, resume: bool = False, progress: bool = True) -> dict[str, float]:
+    """Run (or continue) a training run; returns the last validation metrics (empty without validation)."""
+    return Trainer(config, resume, progress).run()
+
+
+class Trainer:
+    """One run: ``__init__`` builds data, model, optimizer and schedule (and loads the checkpoint to resume
+    from), ``run`` steps until ``total`` optimizer steps, logging and checkpointing as it goes."""
+
+    def __init__(self, config: TrainConfig, resume: bool, progress: bool) -> None:
+        from accelerate import Accelerator
+        from accelerate.utils import set_seed
+
+        self.config, self.out, self.progress = config, Path(config.out), progress
+        train_rows, val_rows, val_routes = load_split(config)
+        if len(train_rows) == 0:
+            raise ValueError(f"{config.data}: no training rows after holding out routes {val_routes}")
+        _check_out(config, self.out, resume)
+        self.accelerator = acc = Accelerator(mixed_precision=mixed_precision(config.mixed_precision))
+        set_seed(config.seed)
+        model = V2VVLA.from_config(config.model_config())
+        self.train_set = DrivingDataset(train_rows, config.augment, config.seed)
+        self.sampler = EpochSampler(len(self.train_set), config.seed)
+        # the loader first: its prepared length is the per-process batches of an epoch
+        self.loader = acc.prepare(_loader(self.train_set, self.sampler, model, config))
+        val = DrivingDataset(val_rows)
+        self.val_loader = (
+            acc.prepare(_loader(val, EpochSampler(len(val), 0, shuffle=False), model, config))
+            if len(val)
+            else None
+        )
+        self.total = config.max_steps if config.max_steps is not None else len(self.loader) * config.epochs
+        params = [p for p in model.parameters() if p.requires_grad]
+        optimizer = torch.optim.AdamW(params, lr=config.learning_rate, weight_decay=config.weight_decay)
+        scheduler = torch.optim.lr_scheduler.OneCycleLR(
+            optimizer,
+            max_lr=config.learning_rate,
+            # accelerate steps a prepared scheduler once per process per optimizer step: count in those
+            total_steps=self.total * acc.num_processes,
+            pct_start=config.warmup,
+            anneal_strategy="cos",
+            cycle_momentum=False,
+        )
+        self.model, self.optimizer, self.scheduler = acc.prepare(model, optimizer, scheduler)
+        self.state = TrainState()
+        last = latest_checkpoint(self.out) if resume else None
+        if last is not None:
+            acc.load_state(str(last))
+            self.state = TrainState(**json.loads((last / STATE).read_text()))
+            acc.print(f"resuming from {last} (step {self.state.step})")
+        self.metrics = _MetricsLog(self.out, self.state.step, acc.is_main_process)
+        if acc.is_main_process:
+            (self.out / "train_config.json").write_text(json.dumps(config.to_dict(), indent=2) + "\n")
+        info = {"val_routes": val_routes, "total_steps": self.total, "train_rows": len(self.train_set)}
+        info |= {"val_rows": len(val), "lr": config.learning_rate, "mixed_precision": acc.mixed_precision}
+        self.metrics.write({"split": "info", "step": self.state.step, **info})
+
+    def run(self) -> dict[str, float]:
+        from tqdm.auto import tqdm
+
+        acc, state = self.accelerator, self.state
+        show = self.progress and acc.is_main_process
+        self.bar = tqdm(total=self.total, initial=state.step, disable=not show, desc="train", unit="step")
+        self.val_metrics: dict[str, float] = {}
+        self.window: list[dict[str, float]] = []
+        self.tick = time.perf_counter()
+        self.model.train()
+        while state.step < self.total:
+            for batch in self._epoch():
+                logs = _step(self.model, batch, self.optimizer, self.scheduler, acc, self.config.grad_clip)
+                self._after_step(logs, len(batch) * acc.num_processes)
+                if state.step >= self.total:
+                    break
+            else:
+                state.epoch += 1
+                state.batch_in_epoch = 0
+        self.bar.close()
+        acc.wait_for_everyone()
+        if acc.is_main_process:
+            acc.unwrap_model(self.model).save_pretrained(self.out / FINAL)
+        self.metrics.close()
+        acc.end_training()
+        return self.val_metrics
+
+    def _epoch(self) -> Any:
+        """The batches of the current epoch still to run (all of them, or those after a resume point)."""
+        epoch, done = self.state.epoch, self.state.batch_in_epoch
+        self.loader.set_epoch(epoch)  # accelerate's epoch counter; it passes it to the sampler
+        self.sampler.set_epoch(epoch)
+        self.train_set.set_epoch(epoch)
+        return self.accelerator.skip_first_batches(self.loader, done) if done else self.loader
+
+    def _after_step(self, logs: dict[str, float], samples: int) -> None:
+        """Count the step; log every ``log_every`` steps; validate and checkpoint every ``save_every``."""
+        state, config = self.state, self.config
+        state.step += 1
+        state.batch_in_epoch += 1
+        self.window.append({**logs, "samples": samples})
+        self.bar.update(1)
+        last = state.step == self.total
+        if state.step % config.log_every == 0 or last:
+            now = time.perf_counter()
+            row = _summarise(self.window, now - self.tick)
+            self.metrics.write({**row, "split": "train", "step": state.step, "epoch": state.epoch})
+            self.bar.set_postfix(loss=f"{row['loss']:.3f}")
+            self.window, self.tick = [], now
+        if state.step % config.save_every == 0 or last:
+            if self.val_loader is not None:
+                self.val_metrics = evaluate(self.model, self.val_loader, self.accelerator, config.val_batches)
+                self.metrics.write({"split": "val", "step": state.step, **self.val_metrics})
+            _save(self.accelerator, self.model, self.out, state, config.keep_checkpoints)
+            self.tick = time.perf_counter()  # checkpoints and validation are not training speed
+
+
+RESUME_MAY_CHANGE = ("num_workers", "log_every")  # settings that do not change what is trained
+
+
+def _check_out(config: TrainConfig, out: Path, resume: bool) -> None:
+    saved = out / "train_config.json"
+    if resume and saved.is_file():
+        old = json.loads(saved.read_text())
+        new = json.loads(json.dumps(config.to_dict()))  # tuples as lists, as in the file
+        diff = sorted(
+            k for k in old.keys() | new.keys() if k not in RESUME_MAY_CHANGE and old.get(k) != new.get(k)
+        )
+        if diff:
+            raise ValueError(f"{out}: --resume with a different configuration ({', '.join(diff)})")
+    elif not resume and (out / CHECKPOINTS).exists():
+        raise FileExistsError(f"{out} already holds a run: continue it with --resume or pick another --out")
+    out.mkdir(parents=True, exist_ok=True)
+
+
+def _loader(dataset: Dataset, sampler: Sampler[int], model: V2VVLA, config: TrainConfig) -> DataLoader:
+    return DataLoader(
+        dataset,
+        batch_size=config.batch_size,
+        sampler=sampler,
+        collate_fn=model.processor,
+        num_workers=config.num_workers,
+        persistent_workers=False,  # a fresh worker copy per epoch sees the epoch set on the dataset
+        pin_memory=torch.cuda.is_available(),
+    )
+
+
+def _step(
+    model: Any, batch: VLABatch, optimizer: Any, scheduler: Any, accelerator: Any, clip: float
+) -> dict[str, float]:
+    lr = float(optimizer.param_groups[0]["lr"])  # the rate this step uses
+    out = model(batch)
+    accelerator.backward(out.loss)
+    norm = accelerator.clip_grad_norm_(model.parameters(), clip)
+    optimizer.step()
+    scheduler.step()
+    optimizer.zero_grad(set_to_none=True)
+    return {
+        "loss": float(out.loss.detach()),
+        "lm_loss": float(out.lm_loss.detach()),
+        "waypoint_loss": float(out.waypoint_loss.detach()),
+        "grad_norm": float(norm),
+        "lr": lr,
+    }
+
+
+@torch.no_grad()
+def evaluate(model: Any, loader: DataLoader, accelerator: Any, max_batches: int) -> dict[str, float]:
+    """Mean losses and the mean path / speed-waypoint errors [m] (L2 per point) on held-out routes."""
+    was = model.training
+    model.eval()
+    sums: dict[str, float] = {}
+    count = 0
+    for i, batch in enumerate(loader):
+        if i >= max_batches:
+            break
+        out = model(batch)
+        values = torch.stack(
+            [
+                out.loss.float(),
+                out.lm_loss.float(),
+                out.waypoint_loss.float(),
+                (out.path - batch.path).norm(dim=-1).mean().float(),
+                (out.speed_waypoints - batch.speed_waypoints).norm(dim=-1).mean().float(),
+            ]
+        )
+        gathered = accelerator.gather_for_metrics(values[None]).mean(0)
+        for k, v in zip(
+            ("loss", "lm_loss", "waypoint_loss", "path_l2_m", "speed_l2_m"), gathered.tolist(), strict=True
+        ):
+            sums[k] = sums.get(k, 0.0) + v
+        count += 1
+    model.train(was)
+    return {k: v / max(count, 1) for k, v in sums.items()}
+
+
+def _summarise(window: list[dict[str, float]], seconds: float) -> dict[str, Any]:
+    """Means over the steps since the last log line; ``lr`` of the last step."""
+    keys = ("loss", "lm_loss", "waypoint_loss", "grad_norm")
+    row: dict[str, Any] = {k: float(np.mean([w[k] for w in window])) for k in keys}
+    row["lr"] = window[-1]["lr"]
+    row["samples_per_s"] = sum(w["samples"] for w in window) / max(seconds, 1e-9)
+    return row
+
+
+def _save(accelerator: Any, model: Any, out: Path, state: TrainState, keep: int) -> None:
+    path = out / CHECKPOINTS / f"step_{state.step:06d}"
+    quiet = logging.getLogger("accelerate.utils.other")  # "removed shared tensor": the tied LM head,
+    level = quiet.level  # which safetensors stores once and load_state ties again (tested by resuming)
+    quiet.setLevel(logging.ERROR)
+    try:
+        accelerator.save_state(str(path))
+    finally:
+        quiet.setLevel(level)
+    if accelerator.is_main_process:
+        accelerator.unwrap_model(model).save_pretrained(path / FINAL)
+        (path / STATE).write_text(json.dumps(dataclasses.asdict(state)) + "\n")  # last: marks it complete
+        done = sorted((out / CHECKPOINTS).glob("step_*"), key=lambda p: int(p.name.split("_")[1]))
+        for old in done[:-keep]:
+            shutil.rmtree(old, ignore_errors=True)
+    accelerator.wait_for_everyone()
+
+
+class _MetricsLog:
+    """``OUT/metrics.jsonl`` and the same scalars in ``OUT/tensorboard``, on the main process only; the
+    lines and events past ``resume_step`` (from an interrupted run) are dropped."""
+
+    def __init__(self, out: Path, resume_step: int, enabled: bool) -> None:
+        from torch.utils.tensorboard import SummaryWriter
+
+        self.path, self.enabled = out / "metrics.jsonl", enabled
+        self.writer = SummaryWriter(str(out / "tensorboard"), purge_step=resume_step) if enabled else None
+        if enabled and self.path.is_file():
+            lines = [ln for ln in self.path.read_text().splitlines() if ln]
+            kept = [ln for ln in lines if json.loads(ln)["step"] <= resume_step]
+            self.path.write_text("".join(ln + "\n" for ln in kept))
+
+    def write(self, row: dict[str, Any]) -> None:
+        if not self.enabled:
+            return
+        with self.path.open("a") as f:
+            f.write(json.dumps(row) + "\n")
+        if self.writer is not None:
+            for key, value in row.items():
+                if isinstance(value, float):
+                    self.writer.add_scalar(f"{row['split']}/{key}", value, row["step"])
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.close()

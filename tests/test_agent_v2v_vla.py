@@ -1,0 +1,274 @@
+"""The V2V-VLA closed-loop agent: SimLingo's controller on hand-made waypoints, target points from the
+sparse plan, checkpoint errors, and closed loop on the mini network with a tiny random model (it drives
+badly: this checks plumbing, batching, the language rate and partner requests, not driving)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+pytest.importorskip("torch", reason="the model needs the 'model' extra (torch, transformers, peft)")
+pytest.importorskip("transformers", reason="the model needs the 'model' extra (torch, transformers, peft)")
+
+import torch
+
+from cmudrive.agents.base import (
+    AgentSetupError,
+    CavPlan,
+    Observations,
+    RouteSetup,
+    agent_factory,
+    load_agent_class,
+)
+from cmudrive.agents.control import CREEP_AFTER, CREEP_TICKS, WaypointController, desired_speed, point_along
+from cmudrive.agents.v2v_vla import TargetPoints, V2VVLAAgent, V2VVLABaselineAgent, resolve_checkpoint
+from cmudrive.bench.evaluator import EvalConfig, evaluate_route
+from cmudrive.bench.records import STATUS_AGENT_CRASHED, STATUS_SIM_CRASHED
+from cmudrive.bench.routes import CavSpec, RouteSpec
+from cmudrive.bench.runner import RouteTask, run_task
+from cmudrive.maps import RoadMap
+from cmudrive.maps.coords import map_to_carla
+from cmudrive.model import V2VVLA, get_config
+from cmudrive.sim.background import BackgroundConfig
+
+torch.set_num_threads(1)
+EMPTY = EvalConfig(tick_cap=12, background=BackgroundConfig(vehicles=0, pedestrians=0))
+
+
+def straight_waypoints(speed: float, n: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Path 1 m apart straight ahead and speed waypoints 0.25 s x ``speed`` apart, (n, ., 2)."""
+    path = np.stack([np.arange(20.0), np.zeros(20)], axis=1)
+    wp = np.stack([np.arange(1, 11) * 0.25 * speed, np.zeros(10)], axis=1)
+    return np.repeat(path[None], n, 0), np.repeat(wp[None], n, 0)
+
+
+# ---- controller -------------------------------------------------------------------------------------
+def test_straight_waypoints_at_5_mps_give_throttle_and_no_steer() -> None:
+    path, wp = straight_waypoints(5.0)
+    assert desired_speed(wp) == pytest.approx([5.0])
+    steer, throttle, brake = WaypointController(1)(np.array([0]), np.array([2.0]), path, wp)
+    assert throttle[0] > 0.5 and brake[0] == 0.0 and steer[0] == pytest.approx(0.0)
+
+
+def test_standing_waypoints_brake_and_overspeed_brakes() -> None:
+    ctl = WaypointController(2)
+    path, _ = straight_waypoints(0.0, 2)
+    zero = np.zeros((2, 10, 2))
+    _, throttle, brake = ctl(np.array([0, 1]), np.array([0.0, 8.0]), path, zero)
+    assert np.all(brake == 1.0) and np.all(throttle == 0.0)
+    _, wp5 = straight_waypoints(5.0)
+    _, throttle, brake = ctl(np.array([0]), np.array([5.6]), path[:1], wp5)  # 5.6 > 1.1 x 5 m/s
+    assert brake[0] == 1.0 and throttle[0] == 0.0
+    _, throttle, brake = ctl(np.array([0]), np.array([5.4]), path[:1], wp5)
+    assert brake[0] == 0.0
+
+
+def test_a_path_curving_left_steers_left_in_carla_sign_and_right_steers_right() -> None:
+    s = np.arange(20.0)
+    left = np.stack([s, 0.03 * s**2], axis=1)  # y + = left
+    right = left * [1.0, -1.0]
+    _, wp = straight_waypoints(5.0, 2)
+    steer, _, _ = WaypointController(2)(np.array([0, 1]), np.array([5.0, 5.0]), np.stack([left, right]), wp)
+    assert steer[0] < -0.05 and steer[1] == pytest.approx(-steer[0])  # CARLA: + = right
+
+
+def test_look_ahead_point_is_interpolated_along_the_path() -> None:
+    path = np.array([[[1.0, 0.0], [2.0, 0.0], [2.0, 3.0]]])  # 1 m, 1 m, then 3 m to the left
+    assert point_along(path, np.array([1.5]))[0] == pytest.approx([1.5, 0.0])
+    assert point_along(path, np.array([4.0]))[0] == pytest.approx([2.0, 2.0])
+    assert point_along(path, np.array([50.0]))[0] == pytest.approx([2.0, 3.0])  # past the end: last point
+
+
+def test_a_cav_standing_800_ticks_creeps_for_15() -> None:
+    ctl = WaypointController(1)
+    path, _ = straight_waypoints(0.0)
+    zero = np.zeros((1, 10, 2))
+    throttles = [ctl(np.array([0]), np.array([0.0]), path, zero)[1][0] for _ in range(CREEP_AFTER + 20)]
+    creeping = [i for i, t in enumerate(throttles) if t >= 0.4]
+    assert creeping == list(range(CREEP_AFTER, CREEP_AFTER + CREEP_TICKS))
+
+
+# ---- target points ----------------------------------------------------------------------------------
+def plan(points: list[tuple[float, float]]) -> CavPlan:
+    pts = np.array(points, float)
+    return CavPlan("cav", pts, np.zeros(len(pts), np.int8), np.full(len(pts), 13.9))
+
+
+def test_target_points_follow_progress_along_the_sparse_plan() -> None:
+    """An L-shaped plan (0,0) -> (50,0) -> (50,50) -> (50,100): the first two points more than 7.5 m ahead
+    of the CAV's progress, the last point repeated at the end; progress never moves back."""
+    tp = TargetPoints((plan([(0, 0), (50, 0), (50, 50), (50, 100)]), plan([(0, 0), (10, 0)])))
+    rows = np.array([0, 1])
+    got = tp.next_two(rows, np.array([[0.0, 1.0], [0.0, 0.0]]))
+    assert got[0] == pytest.approx(np.array([[50, 0], [50, 50]]))
+    assert got[1] == pytest.approx(np.array([[10, 0], [10, 0]]))
+    assert tp.next_two(rows[:1], np.array([[43.0, 0.5]]))[0] == pytest.approx(np.array([[50, 50], [50, 100]]))
+    assert tp.next_two(rows[:1], np.array([[49.0, 95.0]]))[0] == pytest.approx(np.array([[50, 100]] * 2))
+    # back near the start: progress stays where it was
+    assert tp.next_two(rows[:1], np.array([[0.0, 0.0]]))[0] == pytest.approx(np.array([[50, 100]] * 2))
+
+
+# ---- checkpoints and options ------------------------------------------------------------------------
+def test_a_missing_checkpoint_names_the_path(tmp_path: Path) -> None:
+    with pytest.raises(FileNotFoundError, match="v2v-vla-tiny: no trained checkpoint"):
+        resolve_checkpoint(None, cooperative=True)
+    with pytest.raises(FileNotFoundError, match="v2v-vla-baseline-tiny"):
+        V2VVLABaselineAgent()
+    with pytest.raises(FileNotFoundError, match=str(tmp_path)):
+        V2VVLAAgent(checkpoint=tmp_path)
+
+
+def test_agent_options_are_checked_against_the_constructor(checkpoints: dict[str, Path]) -> None:
+    assert load_agent_class("v2v-vla") is V2VVLAAgent
+    make = agent_factory(V2VVLAAgent, {"checkpoint": str(checkpoints["coop"])})
+    assert make().checkpoint == checkpoints["coop"]  # type: ignore[attr-defined]
+    with pytest.raises(AgentSetupError, match="does not take the options"):
+        agent_factory(V2VVLAAgent, {"checkpoints": "x"})
+
+
+@pytest.fixture(scope="module")
+def checkpoints(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """Tiny randomly initialised models (cooperative and baseline) saved with save_pretrained."""
+    out = {}
+    for name, coop in (("coop", True), ("baseline", False)):
+        torch.manual_seed(0)
+        path = tmp_path_factory.mktemp(name)
+        V2VVLA.from_config(get_config("tiny", cooperative=coop, max_answer_tokens=8)).save_pretrained(path)
+        out[name] = path
+    return out
+
+
+def test_a_baseline_checkpoint_is_refused_by_the_cooperative_agent(
+    checkpoints: dict[str, Path], straight: RouteSpec
+) -> None:
+    result = evaluate_route(straight, lambda: V2VVLAAgent(checkpoint=checkpoints["baseline"]), EMPTY)
+    assert result.status == STATUS_AGENT_CRASHED and "holds a baseline model" in str(result.error)
+
+
+class FakeModel:
+    """Stands in for V2VVLA.predict: CAV row 0 gets a path curving left and names CAV 2, row 1 a straight
+    path and no partner; records whether each call decoded or reused answers."""
+
+    config = get_config("tiny")
+
+    def __init__(self) -> None:
+        self.calls: list[list[list[int]] | None] = []
+
+    def predict(
+        self, rows: list[dict[str, Any]], max_new_tokens: int | None = None, answers: Any = None
+    ) -> Any:
+        from cmudrive.model.modeling import VLAPrediction
+
+        self.calls.append(answers)
+        s = torch.arange(20.0)
+        left = torch.stack([s, 0.03 * s**2], dim=1)
+        straight = torch.stack([s, 0.0 * s], dim=1)
+        wp = torch.stack([torch.arange(1.0, 11.0) * 1.25, torch.zeros(10)], dim=1)  # 5 m/s
+        n = len(rows)
+        return VLAPrediction(
+            path=torch.stack([left, straight][:n]),
+            speed_waypoints=wp.expand(n, 10, 2),
+            text=["Turn left. Communication: CAV 2 can see the pedestrian.", "Go. Communication: none."][:n],
+            partner=[2, -1][:n],
+            answer_ids=[[7, 1], [8, 1]][:n],
+        )
+
+
+def test_the_agent_wires_predictions_to_controls_partners_and_the_language_rate(
+    checkpoints: dict[str, Path],
+) -> None:
+    agent = V2VVLAAgent(checkpoint=checkpoints["coop"], language_every=5)
+    agent.model = FakeModel()
+    plans = tuple(plan([(0, 0), (100, 0)]) for _ in range(3))
+    agent.setup(RouteSetup("r", "mini", "ClearNoon", 0.05, plans))
+    cav = np.array([1, 2])  # CAV 0 has left the route
+
+    def obs(tick: int) -> Observations:
+        return Observations(
+            tick=tick, time=0.05 * tick, cav_index=cav, x=np.array([0.0, 10.0]), y=np.zeros(2),
+            yaw=np.zeros(2), speed=np.array([3.0, 3.0]), accel=np.zeros(2),
+            other_cavs=np.array([[[np.nan] * 3, [np.nan] * 3, [10.0, 0.0, 0.0]],
+                                 [[np.nan] * 3, [-10.0, 0.0, 0.0], [np.nan] * 3]]),
+            camera=np.zeros((2, 128, 256, 3), np.uint8), merged_occupancy=np.zeros((2, 4, 192, 128), bool),
+        )  # fmt: skip
+
+    controls = [agent.run_step(obs(t)) for t in range(7)]
+    assert [a is None for a in agent.model.calls] == [True, False, False, False, False, True, False]
+    assert agent.model.calls[1] == [[7, 1], [8, 1]]  # the cached answers, in cav_index order
+    assert agent.next_partners().tolist() == [2, -1]  # type: ignore[union-attr]
+    assert controls[0].steer[0] < 0 and controls[0].steer[1] == pytest.approx(0.0)  # left: negative
+    assert np.all(controls[0].throttle > 0) and np.all(controls[0].brake == 0)
+    assert agent.last_text[1].startswith("Turn left")
+
+
+# ---- closed loop ------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def straight(mini: RoadMap, mini_net: Path) -> RouteSpec:
+    """Three CAVs on the straight road C-E (x = 212 .. 392, y = 0): two eastbound 15 m apart, one west."""
+    cavs = []
+    for k, (lane, s0) in enumerate((("CE_1", 5.0), ("CE_1", 20.0), ("EC_1", 5.0))):
+        i = mini.lane(lane)
+        xy = mini.index.frenet_to_xy(np.full(4, i), np.linspace(s0, float(mini.lane_length[i]) - 5.0, 4))
+        cavs.append(CavSpec(k, np.column_stack([map_to_carla(xy), np.zeros(4)])))
+    return RouteSpec("v2v_vla_straight", str(mini_net), "ClearNoon", 0, tuple(cavs))
+
+
+class SpyAgent(V2VVLAAgent):
+    """Records every predict call: batch size, whether it decoded, the tick."""
+
+    def setup(self, route: Any) -> None:
+        super().setup(route)
+        self.calls: list[tuple[int, int, bool]] = []
+        self.partners: list[np.ndarray] = []
+        predict = self.model.predict
+
+        def spy(rows: list[dict[str, Any]], **kwargs: Any) -> Any:
+            self.calls.append((self._tick, len(rows), kwargs.get("answers") is None))
+            assert all(r["merged_bev"].shape == (192, 128, 3) for r in rows)
+            assert all(np.asarray(r["target_points"]).shape == (2, 2) for r in rows)
+            return predict(rows, **kwargs)
+
+        self.model.predict = spy
+
+    def run_step(self, obs: Any) -> Any:
+        self._tick = obs.tick
+        controls = super().run_step(obs)
+        partners = self.next_partners()
+        assert partners is not None and partners.shape == (len(obs.cav_index),)
+        self.partners.append(partners)
+        return controls
+
+
+def test_closed_loop_batches_all_cavs_and_talks_every_fifth_tick(
+    checkpoints: dict[str, Path], straight: RouteSpec
+) -> None:
+    agents: list[SpyAgent] = []
+
+    def make() -> SpyAgent:
+        agents.append(SpyAgent(checkpoint=checkpoints["coop"], language_every=5))
+        return agents[-1]
+
+    result = evaluate_route(straight, make, EMPTY)
+    assert result.status not in (STATUS_AGENT_CRASHED, STATUS_SIM_CRASHED), result.error
+    agent = agents[0]
+    assert len(agent.calls) == result.ticks and all(n == 3 for _, n, _ in agent.calls)  # one batch a tick
+    assert [t for t, _, decoded in agent.calls if decoded] == [t for t, _, _ in agent.calls if t % 5 == 0]
+    assert all(a is not None and 1 <= len(a) <= 9 for a in agent.answers)  # 8 tokens + </s> at most
+
+
+def test_baseline_runs_through_the_runner_with_the_checkpoint_option(
+    checkpoints: dict[str, Path], straight: RouteSpec
+) -> None:
+    config = EvalConfig(
+        tick_cap=6,
+        background=BackgroundConfig(vehicles=0, pedestrians=0),
+        agent_options={"checkpoint": str(checkpoints["baseline"])},
+    )
+    result = run_task(RouteTask(straight, "v2v-vla-baseline", config))
+    assert result.status not in (STATUS_AGENT_CRASHED, STATUS_SIM_CRASHED), result.error
+    assert result.ticks == 6 and result.v2v is None  # the baseline takes no part in V2V
+    assert math.isfinite(result.driving_score)

@@ -1,0 +1,182 @@
+"""Training V2V-VLA on synthetic shards: route-level split, camera-rotation augmentation (image and labels
+moved together), exact resumption, logs, the CLI and the baseline flag."""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("torch", reason="training needs the 'model' extra (torch, transformers, accelerate)")
+pytest.importorskip("accelerate", reason="training needs the 'model' extra (torch, transformers, accelerate)")
+
+import torch
+from PIL import Image
+from safetensors.torch import load_file
+from typer.testing import CliRunner
+
+from cmudrive.cli import app
+from cmudrive.data.schema import packed_to_rgb
+from cmudrive.data.synthetic import write_synthetic_shards
+from cmudrive.model import V2VVLA
+from cmudrive.model.augment import YawAugment, bev_codes, rotate_camera, rotate_sample, rotated_frame
+from cmudrive.model.train import DrivingDataset, TrainConfig, load_split, split_routes, train
+from cmudrive.sensors.camera import CameraConfig
+
+torch.set_num_threads(1)
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("shards")
+    write_synthetic_shards(out, routes=3, rows_per_route=12, seed=0)
+    return out
+
+
+# ---- split ------------------------------------------------------------------------------------------
+def test_validation_holds_out_whole_routes(data: Path) -> None:
+    train_rows, val_rows, val_routes = load_split(TrainConfig(data=str(data), out="unused", val_fraction=0.3))
+    assert len(val_routes) == 1 and len(train_rows) == 24 and len(val_rows) == 12
+    assert set(val_rows["route_id"]) == set(val_routes)
+    assert not set(train_rows["route_id"]) & set(val_routes)
+    assert split_routes(["a"], 0.5, 0) == []  # a single route trains
+    assert len(split_routes([str(i) for i in range(20)], 0.1, 0)) == 2
+
+
+# ---- augmentation -----------------------------------------------------------------------------------
+def test_a_rotated_camera_sees_the_point_ahead_f_tan_dyaw_to_the_right() -> None:
+    cam = CameraConfig()
+    image = np.zeros((cam.height, cam.width, 3), np.uint8)
+    image[:, cam.width // 2 - 1 : cam.width // 2 + 1] = 255  # a vertical line straight ahead
+    dyaw = math.radians(12.0)  # turned left
+    out = np.asarray(rotate_camera(Image.fromarray(image), dyaw, cam.fov_deg))
+    cols = np.flatnonzero(out[cam.height // 2, :, 0] > 100)
+    expected = cam.width / 2 + cam.focal * math.tan(dyaw)
+    assert abs(cols.mean() + 0.5 - expected) < 1.0
+    assert out[:, :5].max() == 0  # the columns the old camera did not see are black (left edge here)
+    same = np.asarray(rotate_camera(Image.fromarray(image), 0.0, cam.fov_deg))
+    assert np.abs(same.astype(int) - image).max() <= 1
+
+
+def test_labels_move_with_the_rotation_about_the_camera() -> None:
+    """Turned 10 deg left about the camera (1.5 m behind the centre): the straight path ahead now runs
+    to the right at -10 deg, and starts 1.5 m x (1 - cos, -sin) off the new origin."""
+    dyaw = math.radians(10.0)
+    s = np.arange(20.0)
+    row = {
+        "camera": Image.new("RGB", (256, 128)),
+        "merged_bev": Image.fromarray(packed_to_rgb(np.zeros((192, 128), np.uint8))),
+        "path": np.stack([s, np.zeros(20)], axis=1),
+        "speed_waypoints": np.stack([np.arange(1, 11.0), np.zeros(10)], axis=1),
+        "target_points": [[30.0, 0.0], [60.0, 0.0]],
+        "other_cavs": [[3.0, 10.0, 0.0, 0.0]],
+        "speed": 4.0,
+        "commentary": "Stay on the route.",
+    }
+    out = rotate_sample(row, dyaw)
+    path = np.asarray(out["path"])
+    heading = np.arctan2(*(path[-1] - path[0])[::-1])
+    assert heading == pytest.approx(-dyaw, abs=1e-5)
+    np.testing.assert_allclose(np.diff(path, axis=0).sum(-1) ** 0, 1.0)
+    assert np.linalg.norm(np.diff(path, axis=0), axis=1) == pytest.approx(np.ones(19), abs=1e-5)
+    pose = rotated_frame(dyaw, -1.5)
+    assert pose[:2] == pytest.approx([-1.5 + 1.5 * math.cos(dyaw), 1.5 * math.sin(dyaw)])
+    # every point keeps its distance from the camera, which stays at (-1.5, 0) in both frames
+    for key in ("path", "speed_waypoints", "target_points"):
+        before = np.linalg.norm(np.asarray(row[key], float) - [-1.5, 0.0], axis=1)
+        after = np.linalg.norm(np.asarray(out[key], float) - [-1.5, 0.0], axis=1)
+        assert after == pytest.approx(before, abs=1e-4)
+    cav, x, y, yaw = out["other_cavs"][0]
+    assert cav == 3 and x == pytest.approx(11.5 * math.cos(dyaw) - 1.5, abs=1e-6) and y < 0
+    assert yaw == pytest.approx(-dyaw)
+    assert out["speed"] == 4.0 and out["commentary"] == row["commentary"]
+    assert rotate_sample(row, 0.0) is row
+
+
+def test_the_bev_is_redrawn_in_the_rotated_frame() -> None:
+    packed = np.zeros((192, 128), np.uint8)
+    packed[87:89, 63:65] = 1  # a vehicle ~20 m straight ahead (rows from 64 m ahead, 0.5 m cells)
+    bev = Image.fromarray(packed_to_rgb(packed))
+    dyaw = math.radians(10.0)
+    row = {"camera": Image.new("RGB", (256, 128)), "merged_bev": bev}
+    out = np.asarray(rotate_sample(row, dyaw)["merged_bev"])
+    rows, cols = np.nonzero(bev_codes(out) == 1)
+    x, y = 64.0 - (rows.mean() + 0.5) * 0.5, 32.0 - (cols.mean() + 0.5) * 0.5  # cell centres, ego frame
+    assert math.degrees(math.atan2(y, x + 1.5)) == pytest.approx(-10.0, abs=2.0)  # seen from the camera
+    assert np.array_equal(out[124:133, 62:66], np.asarray(bev)[124:133, 62:66])  # the ego box, upright
+
+
+def test_augmentation_is_a_function_of_seed_epoch_and_index(data: Path) -> None:
+    train_rows, _, _ = load_split(TrainConfig(data=str(data), out="unused", val_fraction=0.0))
+    aug = YawAugment(prob=1.0)
+    a, b = DrivingDataset(train_rows, aug, seed=1), DrivingDataset(train_rows, aug, seed=1)
+    assert np.array_equal(a[5]["path"], b[5]["path"])
+    b.set_epoch(1)
+    assert not np.array_equal(a[5]["path"], b[5]["path"])
+    plain = DrivingDataset(train_rows)[5]
+    assert np.array_equal(np.asarray(plain["path"]), np.asarray(train_rows[5]["path"]))
+
+
+# ---- training ---------------------------------------------------------------------------------------
+def config(data: Path, out: Path, **kw: object) -> TrainConfig:
+    base: dict = dict(data=str(data), out=str(out), batch_size=4, max_steps=7, save_every=2, log_every=1)
+    return TrainConfig(**{**base, **kw, "val_fraction": 0.3})
+
+
+def test_resuming_from_a_checkpoint_gives_the_same_weights_and_losses(data: Path, tmp_path: Path) -> None:
+    """7 steps of 4 rows over 24 training rows (6 steps per epoch: the resumed part starts mid-epoch and
+    crosses an epoch): a run resumed from step 4 ends with the uninterrupted run's weights and losses."""
+    cfg = config(data, tmp_path / "run")
+    train(cfg, progress=False)
+    whole = load_file(str(tmp_path / "run" / "model" / "model.safetensors"))
+    log = [json.loads(ln) for ln in (tmp_path / "run" / "metrics.jsonl").read_text().splitlines()]
+    losses = {r["step"]: r["loss"] for r in log if r["split"] == "train"}
+    assert sorted(losses) == list(range(1, 8))
+    for step in (6, 7):  # the run "stopped" after the checkpoint of step 4
+        shutil.rmtree(tmp_path / "run" / "checkpoints" / f"step_{step:06d}", ignore_errors=True)
+    shutil.rmtree(tmp_path / "run" / "model")
+    train(cfg, resume=True, progress=False)
+    resumed = load_file(str(tmp_path / "run" / "model" / "model.safetensors"))
+    assert max(float((whole[k] - resumed[k]).abs().max()) for k in whole) < 1e-6
+    log = [json.loads(ln) for ln in (tmp_path / "run" / "metrics.jsonl").read_text().splitlines()]
+    again = {r["step"]: r["loss"] for r in log if r["split"] == "train"}
+    assert sorted(again) == list(range(1, 8))  # the lines after step 4 of the first run were replaced
+    assert again == pytest.approx(losses, rel=1e-6)
+    first = load_file(str(tmp_path / "run" / "checkpoints" / "step_000004" / "model" / "model.safetensors"))
+    assert max(float((whole[k] - first[k]).abs().max()) for k in whole) > 1e-4  # steps 5-7 did change it
+
+
+def test_a_run_writes_logs_checkpoints_and_a_loadable_model(data: Path, tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    metrics = train(config(data, out, max_steps=4, keep_checkpoints=1), progress=False)
+    assert set(metrics) == {"loss", "lm_loss", "waypoint_loss", "path_l2_m", "speed_l2_m"}
+    log = [json.loads(ln) for ln in (out / "metrics.jsonl").read_text().splitlines()]
+    train_lines = [r for r in log if r["split"] == "train"]
+    assert [r["step"] for r in train_lines] == [1, 2, 3, 4]
+    lrs = [r["lr"] for r in train_lines]
+    assert max(lrs) <= 1e-3 + 1e-12 and lrs[-1] < lrs[1]  # one cycle: up to the peak, then down
+    assert all(r["grad_norm"] > 0 and math.isfinite(r["loss"]) for r in train_lines)
+    assert [r["step"] for r in log if r["split"] == "val"] == [2, 4]
+    assert list((out / "tensorboard").glob("events.out.tfevents.*"))
+    assert [p.name for p in (out / "checkpoints").iterdir()] == ["step_000004"]  # keep_checkpoints=1
+    model = V2VVLA.from_pretrained(out / "model")
+    assert model.config.cooperative and model.config.name == "tiny"
+    with pytest.raises(FileExistsError, match="--resume"):
+        train(config(data, out, max_steps=4), progress=False)
+    with pytest.raises(ValueError, match="different configuration"):
+        train(config(data, out, max_steps=5), resume=True, progress=False)
+
+
+def test_cli_trains_the_baseline(data: Path, tmp_path: Path) -> None:
+    out = tmp_path / "baseline"
+    args = ["train", "--data", str(data), "--out", str(out), "--baseline", "--max-steps", "2"]
+    result = CliRunner().invoke(app, [*args, "--batch-size", "2", "--save-every", "2"])
+    assert result.exit_code == 0, result.output
+    assert not V2VVLA.from_pretrained(out / "model").config.cooperative
+    none = ["train", "--data", str(tmp_path / "none"), "--out", str(tmp_path / "x")]
+    missing = CliRunner().invoke(app, none)
+    assert missing.exit_code == 1 and "no .parquet shard" in " ".join(missing.output.split())
