@@ -114,10 +114,11 @@ class TrafficLights:
                 continue
             current = libsumo.trafficlight.getRedYellowGreenState(tls_id)
             shown = "".join(state[k] if due[k] <= now else c for k, c in enumerate(current))
-            if (due <= now).all():
-                del self._target[tls_id]
+            left = np.where(due <= now, np.inf, due)
+            if np.isfinite(left).any():
+                self._target[tls_id] = (state, left)
             else:
-                due[due <= now] = np.inf
+                del self._target[tls_id]  # every yellow of this light is over
             libsumo.trafficlight.setRedYellowGreenState(tls_id, shown)
 
     def force_lanes(self, lanes: list[int] | np.ndarray, char: str, others: str | None = None) -> list[str]:
@@ -153,7 +154,8 @@ class TrafficLights:
             if resumed is not None and len(resumed) == len(current):
                 self._switch(tls, current, resumed, now)  # yellow where the program turns a green red
             pending = self._target.get(tls)
-            until = float(pending[1][np.isfinite(pending[1])].max()) if pending else now
+            yellow_ends = pending[1][np.isfinite(pending[1])] if pending else np.zeros(0)
+            until = float(yellow_ends.max()) if yellow_ends.size else now
             if until > now:
                 self._release_at[tls] = until
             else:
