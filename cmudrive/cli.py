@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -355,6 +357,60 @@ def _routes_path(name_or_path: str) -> Path:
     return Path(__file__).resolve().parent / "assets" / "routes" / f"{name_or_path}.xml"
 
 
+def _read_specs(routes: str, town_dir: list[Path] | None, limit: int | None = None) -> tuple[Path, list[Any]]:
+    """The valid routes of a route file or set (invalid ones reported and skipped, at most ``limit``),
+    with the extra town folders; exits naming the file when none is left."""
+    from cmudrive.bench.routes import read_routes
+
+    path = _routes_path(routes)
+    try:
+        specs, invalid = read_routes(path, strict=False)
+    except (OSError, ValueError) as exc:
+        _fail(exc)
+    for route_id, message in invalid:
+        err_console.print(f"[yellow]skipping route {route_id}:[/] {message}")
+    specs = specs[:limit] if limit is not None else specs
+    if not specs:
+        _fail(ValueError(f"{path}: no route to run" + (" (every route is invalid)" if invalid else "")))
+    extra_dirs = tuple(str(d.resolve()) for d in town_dir or ())
+    return path, [dataclasses.replace(s, town_dirs=s.town_dirs + extra_dirs) for s in specs]
+
+
+def _route_executor(executor: str, workers: int | None, ray_address: str | None) -> Any:
+    """The executor named on the command line (``local`` with ``workers``, or ``ray``)."""
+    from cmudrive.bench.runner import LocalExecutor, RayExecutor
+
+    if executor == "ray":
+        return RayExecutor(ray_address)
+    if executor != "local":
+        _fail(ValueError(f"--executor {executor!r}: use 'local' or 'ray'"))
+    return LocalExecutor(workers or default_workers())
+
+
+@contextlib.contextmanager
+def _route_progress(path: Path, total: int, tick_cap: int) -> Iterator[tuple[Any, Any]]:
+    """Progress bars: one over the routes, one per running route over its ticks. Yields
+    (on_progress(route_id, tick), done(route_id)): ``done`` advances the overall bar."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TaskID, TextColumn, TimeElapsedColumn
+
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
+    with Progress(*columns, console=console) as progress:
+        overall = progress.add_task(f"{total} routes from {path.name}", total=total)
+        ticks: dict[str, TaskID] = {}
+
+        def on_progress(route_id: str, tick: int) -> None:
+            if route_id not in ticks:
+                ticks[route_id] = progress.add_task(f"  route {route_id} [ticks]", total=tick_cap)
+            progress.update(ticks[route_id], completed=tick)
+
+        def done(route_id: str) -> None:
+            progress.advance(overall)
+            if route_id in ticks:
+                progress.remove_task(ticks.pop(route_id))
+
+        yield on_progress, done
+
+
 @app.command("eval")
 def evaluate(
     routes: Annotated[
@@ -420,27 +476,15 @@ def evaluate(
 ) -> None:
     """Evaluate an agent on a route file; one JSON record per route as it finishes, merged results.json."""
     from rich.markup import escape
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TaskID, TextColumn, TimeElapsedColumn
 
     from cmudrive.bench.evaluator import EvalConfig
     from cmudrive.bench.observe import SensorConfig
     from cmudrive.bench.records import RouteResult
-    from cmudrive.bench.routes import read_routes
-    from cmudrive.bench.runner import LocalExecutor, RayExecutor, run_evaluation
+    from cmudrive.bench.runner import run_evaluation
     from cmudrive.sensors import DetectionNoise
     from cmudrive.v2v import LinkConfig
 
-    path = _routes_path(routes)
-    try:
-        specs, invalid = read_routes(path, strict=False)
-    except (OSError, ValueError) as exc:
-        _fail(exc)
-    for route_id, message in invalid:
-        err_console.print(f"[yellow]skipping route {route_id}:[/] {message}")
-    if not specs:
-        _fail(ValueError(f"{path}: no route to run" + (" (every route is invalid)" if invalid else "")))
-    extra_dirs = tuple(str(d.resolve()) for d in town_dir or ())
-    specs = [dataclasses.replace(s, town_dirs=s.town_dirs + extra_dirs) for s in specs]
+    path, specs = _read_specs(routes, town_dir)
     try:
         sensors = SensorConfig(
             noise=DetectionNoise(*detection_noise),
@@ -465,26 +509,11 @@ def evaluate(
             resolve_checkpoint(checkpoint, cooperative=agent == "v2v-vla")
         except FileNotFoundError as exc:
             _fail(exc)
-    if executor == "ray":
-        runner: LocalExecutor | RayExecutor = RayExecutor(ray_address)
-    elif executor == "local":
-        runner = LocalExecutor(workers or default_workers())
-    else:
-        _fail(ValueError(f"--executor {executor!r}: use 'local' or 'ray'"))
-    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
-    with Progress(*columns, console=console) as progress:
-        overall = progress.add_task(f"{len(specs)} routes from {path.name}", total=len(specs))
-        ticks: dict[str, TaskID] = {}
-
-        def on_progress(route_id: str, tick: int) -> None:
-            if route_id not in ticks:
-                ticks[route_id] = progress.add_task(f"  route {route_id} [ticks]", total=tick_cap)
-            progress.update(ticks[route_id], completed=tick)
+    runner = _route_executor(executor, workers, ray_address)
+    with _route_progress(path, len(specs), tick_cap) as (on_progress, done):
 
         def on_result(result: RouteResult) -> None:
-            progress.advance(overall)
-            if result.route_id in ticks:
-                progress.remove_task(ticks.pop(result.route_id))
+            done(result.route_id)
             console.print(
                 f"route {result.route_id}: {result.status}, DS {result.driving_score:.1f} "
                 f"(RC {result.route_completion:.1f}, IS {result.infraction_score:.2f}), "
@@ -543,53 +572,24 @@ def data_collect(
 ) -> None:
     """Run the expert on the routes and save one sample per active CAV every 5th tick (docs/data.md)."""
     from rich.markup import escape
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TaskID, TextColumn, TimeElapsedColumn
 
     from cmudrive.bench.evaluator import EvalConfig
     from cmudrive.bench.records import RouteResult
-    from cmudrive.bench.routes import read_routes
-    from cmudrive.bench.runner import LocalExecutor, RayExecutor
     from cmudrive.data import collect, shard_path
     from cmudrive.data.shards import shard_rows
 
-    path = _routes_path(routes)
-    try:
-        specs, invalid = read_routes(path, strict=False)
-    except (OSError, ValueError) as exc:
-        _fail(exc)
-    for route_id, message in invalid:
-        err_console.print(f"[yellow]skipping route {route_id}:[/] {message}")
-    specs = specs[:limit_routes] if limit_routes is not None else specs
-    if not specs:
-        _fail(ValueError(f"{path}: no route to collect on"))
-    extra_dirs = tuple(str(d.resolve()) for d in town_dir or ())
-    specs = [dataclasses.replace(s, town_dirs=s.town_dirs + extra_dirs) for s in specs]
+    path, specs = _read_specs(routes, town_dir, limit_routes)
     try:
         config = EvalConfig(tick_cap=tick_cap, step_timeout=step_timeout)
     except ValueError as exc:
         _fail(ValueError(f"--step-timeout / --tick-cap: {exc}"))
-    if executor == "ray":
-        runner: LocalExecutor | RayExecutor = RayExecutor(ray_address)
-    elif executor == "local":
-        runner = LocalExecutor(workers or default_workers())
-    else:
-        _fail(ValueError(f"--executor {executor!r}: use 'local' or 'ray'"))
+    runner = _route_executor(executor, workers, ray_address)
     samples = 0
-    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
-    with Progress(*columns, console=console) as progress:
-        overall = progress.add_task(f"{len(specs)} routes from {path.name}", total=len(specs))
-        ticks: dict[str, TaskID] = {}
-
-        def on_progress(route_id: str, tick: int) -> None:
-            if route_id not in ticks:
-                ticks[route_id] = progress.add_task(f"  route {route_id} [ticks]", total=tick_cap)
-            progress.update(ticks[route_id], completed=tick)
+    with _route_progress(path, len(specs), tick_cap) as (on_progress, done):
 
         def on_result(result: RouteResult, written: bool) -> None:
             nonlocal samples
-            progress.advance(overall)
-            if result.route_id in ticks:
-                progress.remove_task(ticks.pop(result.route_id))
+            done(result.route_id)
             if written:
                 rows = shard_rows(shard_path(out, result.route_id))
                 samples += rows
