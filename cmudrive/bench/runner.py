@@ -36,7 +36,8 @@ import resource
 import tempfile
 import time
 import traceback
-from collections.abc import Callable, Iterator
+from collections import Counter
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, replace
 from multiprocessing import get_context
 from pathlib import Path
@@ -78,6 +79,15 @@ class RouteJob(Protocol):
         config: EvalConfig,
         hooks: RouteHooks,
     ) -> RouteResult: ...
+
+
+def check_routes(routes: Sequence[RouteSpec]) -> None:
+    """A run needs at least one route and unique route ids (records and shards are named by them)."""
+    if not routes:
+        raise ValueError("no route to run")
+    dup = sorted(i for i, n in Counter(spec.id for spec in routes).items() if n > 1)
+    if dup:
+        raise ValueError(f"duplicate route ids: {dup}")
 
 
 @dataclass(frozen=True)
@@ -378,12 +388,8 @@ def run_evaluation(
     agent_spec = agent if isinstance(agent, str) else f"{agent.__module__}:{agent.__qualname__}"
     config = config or EvalConfig()
     agent_factory(load_agent_class(agent_spec), config.agent_options)  # fail fast, before any worker starts
-    if not routes:
-        raise ValueError("no route to run")
+    check_routes(routes)
     ids = [spec.id for spec in routes]
-    dup = sorted({i for i in ids if ids.count(i) > 1})
-    if dup:
-        raise ValueError(f"duplicate route ids: {dup}")
     old = sorted((out / ROUTES_DIR).glob("*.json")) if (out / ROUTES_DIR).is_dir() else []
     if old and not resume:
         raise OutputFolderError(
@@ -410,6 +416,7 @@ __all__ = [
     "RayExecutor",
     "RouteJob",
     "RouteTask",
+    "check_routes",
     "crashed_record",
     "finished_route_ids",
     "merge_results",

@@ -26,7 +26,7 @@ from cmudrive.bench.evaluator import EvalConfig, RouteHooks, evaluate_route
 from cmudrive.bench.observe import SensorConfig
 from cmudrive.bench.records import STATUS_AGENT_CRASHED, STATUS_SIM_CRASHED, RouteResult, record_stem
 from cmudrive.bench.routes import RouteSpec, read_routes
-from cmudrive.bench.runner import Executor, ProgressCallback, RouteTask, write_json_atomic
+from cmudrive.bench.runner import Executor, ProgressCallback, RouteTask, check_routes, write_json_atomic
 from cmudrive.data.collector import SAMPLE_EVERY, CollectingAgent, RouteInfo
 from cmudrive.data.schema import features
 from cmudrive.data.shards import RECORDS_DIR, ShardWriter, shard_complete, shard_path
@@ -139,12 +139,8 @@ def collect(
 ) -> CollectSummary:
     """Collect shards for ``routes`` into ``out`` (module docstring). ``on_result(record, shard_written)``
     hears of every route as it finishes. Without ``resume``, ``out`` must hold no shard yet."""
-    if not routes:
-        raise ValueError("no route to collect on")
-    ids = [s.id for s in routes]
-    dup = sorted({i for i in ids if ids.count(i) > 1})
-    if dup:
-        raise ValueError(f"duplicate route ids: {dup}")
+    check_routes(routes)
+    ids = [spec.id for spec in routes]
     if not allow_benchmark:
         check_not_benchmark(routes)
     out = Path(out)
