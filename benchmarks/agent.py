@@ -6,10 +6,10 @@
 One tick of the agent (``cmudrive.agents.v2v_vla``), for a random ``tiny`` model and 16 CAVs that all see
 each other (8 other CAVs listed in every prompt, the prompt's longest form): building the rows (merged
 occupancy drawn as RGB), the processor (image tiles + tokens), the vision encoder alone, ``predict`` on a
-talking tick (greedy decoding of an answer as long as a typical commentary + communication sentence; a
-random model never stops by itself, so its length is forced) and on a silent tick (the queries after the
-cached answer, one pass), and the controller. Median of ``--repeats`` after a warm-up. The amortised
-tick is one talking tick and ``language_every - 1`` silent ones.
+silent tick (waypoints only: one pass over prompt + queries) and on a talking tick (the same, then greedy
+decoding of an answer as long as a typical commentary + communication sentence; a random model never
+stops by itself, so its length is forced), and the controller. Median of ``--repeats`` after a warm-up.
+The amortised tick is one talking tick and ``language_every - 1`` silent ones.
 """
 
 from __future__ import annotations
@@ -80,7 +80,6 @@ def main() -> None:
         *model.tokenizer(" " + ANSWER, add_special_tokens=False)["input_ids"],
         model.processor.eos_token_id,
     ]
-    answers = [answer] * n
     batch = model.processor(rows)
     tiles = batch.pixel_values.flatten(0, 1)
     ctl = WaypointController(n)
@@ -93,9 +92,8 @@ def main() -> None:
     t_proc = timed(lambda: model.processor(rows), args.repeats)
     with torch.no_grad():
         t_vision = timed(lambda: model.backbone.model.get_image_features(pixel_values=tiles), args.repeats)
-    t_silent = timed(lambda: model.predict(batch, answers=answers), args.repeats)
+    t_silent = timed(lambda: model.predict(batch, max_new_tokens=0), args.repeats)
     t_talk = timed(lambda: model.predict(batch, max_new_tokens=len(answer) - 1), args.repeats)
-    t_bare = timed(lambda: model.predict(batch, max_new_tokens=0), args.repeats)
     t_ctl = timed(lambda: ctl(cav, speed, path, wp), args.repeats)
     k = args.language_every
     amortised = t_rows + t_proc + (t_talk + (k - 1) * t_silent) / k + t_ctl
@@ -107,16 +105,9 @@ def main() -> None:
     print(f"  rows (BEV drawn)        {t_rows * 1e3:7.1f} ms")
     print(f"  processor               {t_proc * 1e3:7.1f} ms")
     print(f"  vision encoder alone    {t_vision * 1e3:7.1f} ms  ({tiles.shape[0]} tiles)")
-    print(
-        f"  predict, silent tick    {t_silent * 1e3:7.1f} ms  "
-        "(vision + one pass over prompt + answer + queries)"
-    )
+    print(f"  predict, silent tick    {t_silent * 1e3:7.1f} ms  (vision + one pass over prompt + queries)")
     print(
         f"  predict, talking tick   {t_talk * 1e3:7.1f} ms  (vision + prefill + {len(answer)} decoding steps)"
-    )
-    print(
-        f"  predict, no answer      {t_bare * 1e3:7.1f} ms  "
-        "(max_new_tokens=0, for comparison: queries right after </s>, not the training layout)"
     )
     print(f"  controller              {t_ctl * 1e3:7.1f} ms")
     print(

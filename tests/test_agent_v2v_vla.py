@@ -16,6 +16,7 @@ pytest.importorskip("transformers", reason="the model needs the 'model' extra (t
 
 import torch
 
+from cmudrive.agents import v2v_vla
 from cmudrive.agents.base import (
     AgentSetupError,
     CavPlan,
@@ -33,7 +34,9 @@ from cmudrive.bench.runner import RouteTask, run_task
 from cmudrive.maps import RoadMap
 from cmudrive.maps.coords import map_to_carla
 from cmudrive.model import V2VVLA, get_config
+from cmudrive.sensors.occupancy import occupancy_to_rgb
 from cmudrive.sim.background import BackgroundConfig
+from cmudrive.sim.dynamics import Controls
 
 torch.set_num_threads(1)
 EMPTY = EvalConfig(tick_cap=12, background=BackgroundConfig(vehicles=0, pedestrians=0))
@@ -113,13 +116,21 @@ def test_target_points_follow_progress_along_the_sparse_plan() -> None:
 
 
 # ---- checkpoints and options ------------------------------------------------------------------------
-def test_a_missing_checkpoint_names_the_path(tmp_path: Path) -> None:
-    with pytest.raises(FileNotFoundError, match="v2v-vla-tiny: no trained checkpoint"):
-        resolve_checkpoint(None, cooperative=True)
-    with pytest.raises(FileNotFoundError, match="v2v-vla-baseline-tiny"):
+def test_a_missing_checkpoint_names_the_path(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(v2v_vla, "DEFAULT_BASELINE_CHECKPOINT", tmp_path / "v2v-vla-baseline-tiny")
+    with pytest.raises(FileNotFoundError, match="v2v-vla-baseline-tiny: no trained checkpoint"):
         V2VVLABaselineAgent()
     with pytest.raises(FileNotFoundError, match=str(tmp_path)):
         V2VVLAAgent(checkpoint=tmp_path)
+
+
+@pytest.mark.parametrize("cooperative", [True, False])
+def test_the_committed_checkpoints_load_and_are_small(cooperative: bool) -> None:
+    path = resolve_checkpoint(None, cooperative)
+    assert path.name == ("v2v-vla-tiny" if cooperative else "v2v-vla-baseline-tiny")
+    assert (path / "model.safetensors").stat().st_size < 20e6  # the issue's limit for committed weights
+    model = V2VVLA.from_pretrained(path)
+    assert model.config.name == "tiny" and model.config.cooperative is cooperative
 
 
 def test_agent_options_are_checked_against_the_constructor(checkpoints: dict[str, Path]) -> None:
@@ -151,19 +162,17 @@ def test_a_baseline_checkpoint_is_refused_by_the_cooperative_agent(
 
 class FakeModel:
     """Stands in for V2VVLA.predict: CAV row 0 gets a path curving left and names CAV 2, row 1 a straight
-    path and no partner; records whether each call decoded or reused answers."""
+    path and no partner; records the max_new_tokens of each call (0: waypoints only)."""
 
     config = get_config("tiny")
 
     def __init__(self) -> None:
-        self.calls: list[list[list[int]] | None] = []
+        self.calls: list[int | None] = []
 
-    def predict(
-        self, rows: list[dict[str, Any]], max_new_tokens: int | None = None, answers: Any = None
-    ) -> Any:
+    def predict(self, rows: list[dict[str, Any]], max_new_tokens: int | None = None) -> Any:
         from cmudrive.model.modeling import VLAPrediction
 
-        self.calls.append(answers)
+        self.calls.append(max_new_tokens)
         s = torch.arange(20.0)
         left = torch.stack([s, 0.03 * s**2], dim=1)
         straight = torch.stack([s, 0.0 * s], dim=1)
@@ -174,7 +183,7 @@ class FakeModel:
             speed_waypoints=wp.expand(n, 10, 2),
             text=["Turn left. Communication: CAV 2 can see the pedestrian.", "Go. Communication: none."][:n],
             partner=[2, -1][:n],
-            answer_ids=[[7, 1], [8, 1]][:n],
+            answer_ids=[[7, 1], [8, 1]][:n] if max_new_tokens != 0 else [[]] * n,
         )
 
 
@@ -197,8 +206,7 @@ def test_the_agent_wires_predictions_to_controls_partners_and_the_language_rate(
         )  # fmt: skip
 
     controls = [agent.run_step(obs(t)) for t in range(7)]
-    assert [a is None for a in agent.model.calls] == [True, False, False, False, False, True, False]
-    assert agent.model.calls[1] == [[7, 1], [8, 1]]  # the cached answers, in cav_index order
+    assert agent.model.calls == [None, 0, 0, 0, 0, None, 0]  # decodes (None: the model's cap) every 5th
     assert agent.next_partners().tolist() == [2, -1]  # type: ignore[union-attr]
     assert controls[0].steer[0] < 0 and controls[0].steer[1] == pytest.approx(0.0)  # left: negative
     assert np.all(controls[0].throttle > 0) and np.all(controls[0].brake == 0)
@@ -227,7 +235,7 @@ class SpyAgent(V2VVLAAgent):
         predict = self.model.predict
 
         def spy(rows: list[dict[str, Any]], **kwargs: Any) -> Any:
-            self.calls.append((self._tick, len(rows), kwargs.get("answers") is None))
+            self.calls.append((self._tick, len(rows), kwargs.get("max_new_tokens") != 0))
             assert all(r["merged_bev"].shape == (192, 128, 3) for r in rows)
             assert all(np.asarray(r["target_points"]).shape == (2, 2) for r in rows)
             return predict(rows, **kwargs)
@@ -257,7 +265,7 @@ def test_closed_loop_batches_all_cavs_and_talks_every_fifth_tick(
     agent = agents[0]
     assert len(agent.calls) == result.ticks and all(n == 3 for _, n, _ in agent.calls)  # one batch a tick
     assert [t for t, _, decoded in agent.calls if decoded] == [t for t, _, _ in agent.calls if t % 5 == 0]
-    assert all(a is not None and 1 <= len(a) <= 9 for a in agent.answers)  # 8 tokens + </s> at most
+    assert agent.talked.all()
 
 
 def test_baseline_runs_through_the_runner_with_the_checkpoint_option(
@@ -272,3 +280,54 @@ def test_baseline_runs_through_the_runner_with_the_checkpoint_option(
     assert result.status not in (STATUS_AGENT_CRASHED, STATUS_SIM_CRASHED), result.error
     assert result.ticks == 6 and result.v2v is None  # the baseline takes no part in V2V
     assert math.isfinite(result.driving_score)
+
+
+def test_ablations_ignore_partner_requests_or_feed_the_own_occupancy(checkpoints: dict[str, Path]) -> None:
+    """partner_requests=False keeps the default partner; bev="own" draws the CAV's own occupancy."""
+    plans = tuple(plan([(0, 0), (100, 0)]) for _ in range(2))
+    own = np.zeros((2, 4, 192, 128), bool)
+    own[:, 0, 10:20, 10:20] = True  # something only the own grid has
+    merged = np.zeros_like(own)
+    obs = Observations(
+        tick=0, time=0.0, cav_index=np.array([0, 1]), x=np.array([0.0, 10.0]), y=np.zeros(2),
+        yaw=np.zeros(2), speed=np.array([3.0, 3.0]), accel=np.zeros(2),
+        other_cavs=np.array([[[np.nan] * 3, [10.0, 0.0, 0.0]], [[-10.0, 0.0, 0.0], [np.nan] * 3]]),
+        camera=np.zeros((2, 128, 256, 3), np.uint8), occupancy=own, merged_occupancy=merged,
+    )  # fmt: skip
+    for options, partners, drawn in (({}, [2, -1], merged), ({"partner_requests": False}, [-1, -1], merged)):
+        agent = V2VVLAAgent(checkpoint=checkpoints["coop"], **options)
+        agent.model = FakeModel()
+        agent.setup(RouteSetup("r", "mini", "ClearNoon", 0.05, plans))
+        agent.run_step(obs)
+        assert agent.next_partners().tolist() == partners  # type: ignore[union-attr]
+        assert np.array_equal(agent.rows(obs)[0]["merged_bev"], occupancy_to_rgb(drawn)[0])
+    agent = V2VVLAAgent(checkpoint=checkpoints["coop"], bev="own")
+    agent.setup(RouteSetup("r", "mini", "ClearNoon", 0.05, plans))
+    assert np.array_equal(agent.rows(obs)[0]["merged_bev"], occupancy_to_rgb(own)[0])
+    with pytest.raises(ValueError, match="bev must be"):
+        V2VVLAAgent(checkpoint=checkpoints["coop"], bev="none")
+
+
+@pytest.mark.parametrize("agent", [V2VVLAAgent, V2VVLABaselineAgent])
+def test_the_committed_models_keep_a_rolling_cav_on_its_straight_road(
+    agent: type[V2VVLAAgent], straight: RouteSpec
+) -> None:
+    """The trained checkpoints, not random weights: on the empty straight road, told they roll at 5 m/s,
+    they forecast driving on (6-20 m in 2.5 s) along the lane (path within 1.5 m of straight ahead).
+    (Told 0 m/s they forecast standing, the inertia problem that docs/model.md describes.)"""
+    seen: list[Any] = []
+
+    class Probe(agent):  # type: ignore[valid-type,misc]
+        def run_step(self, obs: Observations) -> Controls:
+            if obs.tick == 5:
+                rows = [{**r, "speed": 5.0} for r in self.rows(obs)]
+                seen.append(self.model.predict(rows, max_new_tokens=0))
+            return super().run_step(obs)
+
+    config = EvalConfig(tick_cap=6, background=BackgroundConfig(vehicles=0, pedestrians=0))
+    result = evaluate_route(straight, Probe, config)
+    assert result.status not in (STATUS_AGENT_CRASHED, STATUS_SIM_CRASHED), result.error
+    pred = seen[0]
+    ahead = pred.speed_waypoints[:, -1].norm(dim=-1)
+    assert ((ahead > 6.0) & (ahead < 20.0)).all(), ahead
+    assert pred.path[:, :10, 1].abs().max() < 1.5 and (pred.path[:, 9, 0] > 5.0).all()

@@ -254,3 +254,35 @@ def test_cli_refuses_an_empty_route_file_and_checks_routes(tmp_path: Path) -> No
     assert result.exit_code == 0 and "4 of 4 routes can run" in result.output
     result = runner.invoke(app, ["routes", "check", str(empty)])
     assert result.exit_code == 1 and "no route in the file" in result.output
+
+
+def test_cli_eval_seed_shifts_every_routes_seed(tmp_path: Path) -> None:
+    """--seed N evaluates the same routes with seed + N (other background draws), recorded per route."""
+    spec = read_routes(Path(__file__).parents[1] / "cmudrive" / "assets" / "routes" / "smoke.xml")[0]
+    write_routes([spec], tmp_path / "one.xml")
+    args = [
+        "eval",
+        "--routes",
+        str(tmp_path / "one.xml"),
+        "--agent",
+        "pid",
+        "--tick-cap",
+        "3",
+        "--workers",
+        "1",
+    ]
+    result = CliRunner().invoke(app, [*args, "--seed", "7", "--out", str(tmp_path / "s7")])
+    assert result.exit_code == 0, result.output
+    routes = json.loads((tmp_path / "s7" / "results.json").read_text())["routes"]
+    assert [r["seed"] for r in routes] == [spec.seed + 7]
+
+
+def test_cli_agent_options_reach_the_constructor_check(tmp_path: Path) -> None:
+    """--agent-option KEY=VALUE (JSON values) goes to the agent's constructor, checked before any route."""
+    runner = CliRunner()
+    out = ["--out", str(tmp_path / "o"), "--routes", "smoke", "--agent", "pid"]
+    result = runner.invoke(app, ["eval", *out, "--agent-option", "no_equals_sign"])
+    assert result.exit_code == 1 and "expected KEY=VALUE" in result.output
+    result = runner.invoke(app, ["eval", *out, "--agent-option", "wheels=4"])
+    assert result.exit_code != 0 and "wheels" in result.output
+    assert not (tmp_path / "o" / "results.json").exists()

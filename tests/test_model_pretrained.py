@@ -64,7 +64,10 @@ def test_internvl2_1b_config_loads_a_local_checkpoint_and_round_trips(tmp_path: 
     assert model.processor.tokens_per_image == 16 and model.processor.image_size == 64
     batch = model.processor(rows(2))
     prompt = model.tokenizer.decode(batch.input_ids[0], skip_special_tokens=True)
-    assert prompt.startswith("<|user|>") and "next?\n<|assistant|>Follow the route." in prompt
+    assert prompt.startswith("<|user|>") and prompt.endswith("next?\n<|assistant|>")
+    assert batch.answer_ids is not None
+    answer = model.tokenizer.decode(batch.answer_ids[0], skip_special_tokens=True)
+    assert answer.startswith("Follow the route.")  # no leading space after the chat template
     out = model(batch)
     assert out.loss is not None and torch.isfinite(out.loss)
 

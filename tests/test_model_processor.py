@@ -39,24 +39,26 @@ def test_batch_shapes_and_left_padding(coop: VLAProcessor) -> None:
         n_pad = int((batch.attention_mask[i] == 0).sum())
         assert (batch.attention_mask[i, n_pad:] == 1).all()  # padding only on the left
         assert (batch.input_ids[i, :n_pad] == coop.pad_token_id).all()
-        assert batch.input_ids[i, -1] == coop.eos_token_id  # every row ends with its answer's </s>
         assert int((batch.input_ids[i] == coop.image_token_id).sum()) == 3 * 16
         assert int((batch.input_ids[i] == coop.target_point_token_id).sum()) == 2
+    assert batch.answer_ids is not None and batch.labels is not None
+    for i in range(b):  # answers apart, right-padded, each ending with its </s>
+        n = int((batch.labels[i] != IGNORE_INDEX).sum())
+        assert batch.answer_ids[i, n - 1] == coop.eos_token_id
+        assert (batch.answer_ids[i, n:] == coop.pad_token_id).all()
+        assert (batch.labels[i, :n] == batch.answer_ids[i, :n]).all()
 
 
 def test_labels_cover_exactly_the_answer(coop: VLAProcessor) -> None:
-    row = make_row(1)
-    batch = coop([row])
-    labels, ids = batch.labels[0], batch.input_ids[0]  # type: ignore[index]
-    answer = labels != IGNORE_INDEX
-    first = int(answer.nonzero()[0])
-    assert answer[first:].all() and not answer[:first].any()  # one contiguous block at the end
-    assert torch.equal(labels[answer], ids[answer])
-    text = coop.tokenizer.decode(ids[answer].tolist(), skip_special_tokens=True)
+    batch = coop([make_row(1)])
+    assert batch.labels is not None and batch.answer_ids is not None
+    assert torch.equal(batch.labels[0], batch.answer_ids[0])  # one row: no padding, every token counts
+    assert batch.labels[0, -1] == coop.eos_token_id
+    text = coop.tokenizer.decode(batch.answer_ids[0].tolist(), skip_special_tokens=True)
     assert (
         text == " Turn left. Stop now because of the red light. Communication: CAV 3 can see the pedestrian."
     )
-    prompt = coop.tokenizer.decode(ids[:first].tolist(), skip_special_tokens=True)
+    prompt = coop.tokenizer.decode(batch.input_ids[0].tolist(), skip_special_tokens=True)
     # CAV 7 at 95 m is beyond the 70 m range; the target points are embeddings, not text
     assert prompt.endswith(
         "\nCurrent speed: 3.0 m/s. Target waypoint: . Other CAVs: CAV 3 at (12, -4). "
@@ -67,7 +69,7 @@ def test_labels_cover_exactly_the_answer(coop: VLAProcessor) -> None:
 def test_prompt_only_batch_for_prediction(coop: VLAProcessor) -> None:
     row = {k: v for k, v in make_row(0).items() if k not in ("path", "speed_waypoints", "commentary")}
     batch = coop([row])
-    assert batch.labels is None and batch.path is None
+    assert batch.labels is None and batch.answer_ids is None and batch.path is None
     assert coop.tokenizer.decode(batch.input_ids[0, -3:]).endswith("next?")
 
 
@@ -97,7 +99,8 @@ def test_other_cavs_in_range_nearest_first(coop: VLAProcessor) -> None:
     assert text == "Other CAVs: CAV 9 at (3, -4), CAV 5 at (40, 0)."  # CAV 1 is beyond 70 m
     assert coop.others_text([]) == "Other CAVs: none."
     many = coop.others_text([[k, float(k + 1), 0.0, 0.0] for k in range(12)])
-    assert many.count("CAV ") == 8 and "CAV 7 " in many and "CAV 8 " not in many
+    assert coop.config.max_other_cavs == 4  # tiny lists the 4 nearest (the prompt is most of the cost)
+    assert many.count("CAV ") == 4 and "CAV 3 " in many and "CAV 4 " not in many
 
 
 def test_baseline_takes_no_bev_no_other_cavs_no_communication(baseline: VLAProcessor) -> None:

@@ -24,7 +24,7 @@ from cmudrive.data.schema import packed_to_rgb
 from cmudrive.data.synthetic import write_synthetic_shards
 from cmudrive.model import V2VVLA
 from cmudrive.model.augment import YawAugment, bev_codes, rotate_camera, rotate_sample, rotated_frame
-from cmudrive.model.train import DrivingDataset, TrainConfig, load_split, split_routes, train
+from cmudrive.model.train import DrivingDataset, TrainConfig, keep_rows, load_split, split_routes, train
 from cmudrive.sensors.camera import CameraConfig
 
 torch.set_num_threads(1)
@@ -45,6 +45,23 @@ def test_validation_holds_out_whole_routes(data: Path) -> None:
     assert not set(train_rows["route_id"]) & set(val_routes)
     assert split_routes(["a"], 0.5, 0) == []  # a single route trains
     assert len(split_routes([str(i) for i in range(20)], 0.1, 0)) == 2
+
+
+def test_standing_rows_are_thinned_and_every_moving_or_starting_row_kept() -> None:
+    """standing_keep=0.25: a quarter of the rows standing still for 2.5 s, all others."""
+    import datasets
+
+    n = 1000
+    speed = np.r_[np.zeros(400), np.zeros(100), np.full(500, 5.0)]  # stays, starts, moves
+    steps = np.r_[np.zeros(400), np.full(100, 0.3), np.full(500, 1.25)]  # [m] per 0.25 s
+    waypoints = np.stack([np.outer(steps, np.arange(1, 11)), np.zeros((n, 10))], axis=-1).astype(np.float32)
+    ds = datasets.Dataset.from_dict({"speed": speed, "speed_waypoints": waypoints.tolist()})
+    keep = keep_rows(ds, 0.25, seed=0)
+    assert keep[400:].all()  # starting (3 m in 2.5 s) and moving rows all stay
+    assert 60 <= keep[:400].sum() <= 140  # ~100 of the 400 standing rows
+    assert np.array_equal(keep, keep_rows(ds, 0.25, seed=0)) and keep_rows(ds, 1.0, seed=0).all()
+    with pytest.raises(ValueError, match="standing_keep"):
+        TrainConfig(data="d", out="o", standing_keep=0.0)
 
 
 # ---- augmentation -----------------------------------------------------------------------------------

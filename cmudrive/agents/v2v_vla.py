@@ -6,11 +6,12 @@ Per tick, for the ``n`` active CAVs:
    of the dataset (``occupancy_to_rgb``), its speed, the next two sparse route target points in its frame
    (:class:`TargetPoints`: progress along the leaderboard-style sparse plan that every agent gets, no
    privileged map) and the other CAVs' poses;
-2. one :meth:`~cmudrive.model.V2VVLA.predict` for all of them. Language is generated every
-   ``language_every`` ticks (default 5: the dataset's 4 Hz, the rate its commentary labels change at);
-   on the ticks between, the waypoint queries follow the last generated answer in one pass without
-   decoding (``predict(answers=...)``), which is the layout the model was trained on, at the cost of a
-   forward pass instead of tens of decoding steps;
+2. one :meth:`~cmudrive.model.V2VVLA.predict` for all of them: the waypoints from one pass over
+   prompt + queries every tick, and language (greedy decoding on the same KV cache) every
+   ``language_every`` ticks (default 5: the dataset's 4 Hz, the rate its commentary labels change at;
+   decoding some 50 tokens at 20 Hz would cost several times the driving pass). The waypoints do not
+   depend on the language (the model's layout puts the queries before the answer), so the silent ticks
+   drive exactly as the talking ones;
 3. SimLingo's controller (:class:`~cmudrive.agents.control.WaypointController`) turns the waypoints into
    steer, throttle and brake;
 4. the CAV named in each communication sentence becomes that CAV's partner from the next tick
@@ -117,11 +118,20 @@ class V2VVLAAgent(Agent):
         language_every: int = LANGUAGE_EVERY,
         max_new_tokens: int | None = None,
         device: str | None = None,
+        partner_requests: bool = True,
+        bev: str = "merged",
     ) -> None:
         """``checkpoint``: a ``V2VVLA.save_pretrained`` directory (default: the committed one);
-        ``max_new_tokens``: cap on generated answer tokens (default: the model's ``max_answer_tokens``)."""
+        ``max_new_tokens``: cap on generated answer tokens (default: the model's ``max_answer_tokens``).
+        Ablations of the cooperative model: ``partner_requests=False`` ignores the partner its sentences
+        name (every CAV keeps the default partner, the closest CAV in front); ``bev="own"`` gives it the
+        CAV's own occupancy instead of the merged one (no partner information in the image)."""
         if language_every < 1:
             raise ValueError(f"language_every must be >= 1 tick, got {language_every}")
+        if bev not in ("merged", "own"):
+            raise ValueError(f"bev must be 'merged' or 'own', got {bev!r}")
+        self.partner_requests = partner_requests
+        self.bev = bev
         self.checkpoint = resolve_checkpoint(checkpoint, self.cooperative)
         self.language_every = language_every
         self.max_new_tokens = max_new_tokens
@@ -146,7 +156,7 @@ class V2VVLAAgent(Agent):
         k = len(route.cavs)
         self.targets = TargetPoints(route.cavs)
         self.controller = WaypointController(k)
-        self.answers: list[list[int] | None] = [None] * k  # last generated answer ids per CAV
+        self.talked = np.zeros(k, bool)  # has generated language at least once
         self.last_text = [""] * k
         self.requested = np.full(k, -1, np.int64)  # partner named by each CAV's last sentence
         self.cav_index = np.zeros(0, np.int64)
@@ -160,8 +170,9 @@ class V2VVLAAgent(Agent):
         )
         bev = None
         if self.cooperative:
-            assert obs.merged_occupancy is not None
-            bev = occupancy_to_rgb(obs.merged_occupancy)  # (n, H, W, 3), the dataset's merged_bev
+            grid = obs.merged_occupancy if self.bev == "merged" else obs.occupancy
+            assert grid is not None
+            bev = occupancy_to_rgb(grid)  # (n, H, W, 3), the dataset's merged_bev
         out = []
         for a in range(len(obs.cav_index)):
             rel = obs.other_cavs[a]
@@ -182,16 +193,13 @@ class V2VVLAAgent(Agent):
         self.cav_index = idx
         if len(idx) == 0:
             return Controls(steer=np.zeros(0), throttle=np.zeros(0), brake=np.zeros(0))
-        cached = [self.answers[int(k)] for k in idx]
-        talk = obs.tick % self.language_every == 0 or any(a is None for a in cached)
+        talk = obs.tick % self.language_every == 0 or not self.talked[idx].all()
+        pred = self.model.predict(self.rows(obs), max_new_tokens=self.max_new_tokens if talk else 0)
         if talk:
-            pred = self.model.predict(self.rows(obs), max_new_tokens=self.max_new_tokens)
+            self.talked[idx] = True
             for a, k in enumerate(idx):
-                self.answers[int(k)] = pred.answer_ids[a]
                 self.last_text[int(k)] = pred.text[a]
-                self.requested[int(k)] = pred.partner[a] if self.cooperative else -1
-        else:
-            pred = self.model.predict(self.rows(obs), answers=cached)
+                self.requested[int(k)] = pred.partner[a] if self.cooperative and self.partner_requests else -1
         path = pred.path.float().cpu().numpy().astype(np.float64)  # (n, 20, 2) ego frame [m]
         speed_wp = pred.speed_waypoints.float().cpu().numpy().astype(np.float64)  # (n, 10, 2)
         steer, throttle, brake = self.controller(idx, np.asarray(obs.speed, np.float64), path, speed_wp)

@@ -166,12 +166,13 @@ NAMED_CONFIGS: dict[str, ModelConfig] = {
     "tiny": ModelConfig(
         name="tiny",
         vision=VisionConfig(
-            hidden_size=128, num_layers=2, num_heads=4, intermediate_size=512, image_size=64, patch_size=8
+            hidden_size=96, num_layers=1, num_heads=4, intermediate_size=256, image_size=64, patch_size=8
         ),
-        text=TextConfig(hidden_size=192, num_layers=4, num_heads=6, num_kv_heads=2, intermediate_size=512),
+        text=TextConfig(hidden_size=128, num_layers=2, num_heads=4, num_kv_heads=2, intermediate_size=256),
         llm_training="full",
         target_point_hidden=(32, 64),
         waypoint_head_hidden=64,
+        max_other_cavs=4,
     ),
     "small": ModelConfig(
         name="small",

@@ -8,11 +8,20 @@ Reads top to bottom:
    the config's sizes or read with ``from_pretrained`` from a local directory; peft LoRA on the LLM;
 2. the driving heads: the target-point MLP and the waypoint heads (per-step deltas, summed);
 3. :class:`V2VVLA`: embedding (tokens, image features, target points, waypoint queries), one pass of
-   the language model, the loss (smooth-L1 waypoints + answer-only cross-entropy), ``predict`` (greedy
-   text, then the waypoint queries on the KV cache) and ``save_pretrained``/``from_pretrained``.
+   the language model over prompt, queries and answer, the loss (smooth-L1 waypoints + answer-only
+   cross-entropy), ``predict`` (waypoints from one pass over prompt + queries, then, when asked, greedy
+   text on the KV cache) and ``save_pretrained``/``from_pretrained``.
 
-Shapes: B rows, L prompt(+answer) tokens, Q = n_path + n_speed waypoint queries, H the LLM hidden size,
-V the vocabulary, N = n_images tiles per row of side S, T visual tokens per tile.
+The sequence is ``prompt, waypoint queries, answer``: the queries see the prompt only, the answer sees
+both. SimLingo appends its queries after the text, with the commentary an optional chain of thought
+before them (``reference/MODEL_AND_EXPERT.md``); here the waypoints never wait for language, so the
+closed loop drives every tick from one pass over ~150 positions per CAV and decodes language only at
+its lower rate, and the communication sentence (which picks the next tick's partner) is read after the
+waypoints of the same tick. The cost: the commentary is not a chain of thought for the waypoints
+(docs/model.md, "Layout").
+
+Shapes: B rows, L prompt tokens, Q = n_path + n_speed waypoint queries, A answer tokens, H the LLM
+hidden size, V the vocabulary, N = n_images tiles per row of side S, T visual tokens per tile.
 """
 
 from __future__ import annotations
@@ -25,7 +34,6 @@ from typing import Any, cast
 
 import torch
 import torch.nn.functional as F
-from peft import LoraConfig, inject_adapter_in_model
 from safetensors.torch import load_model, save_model
 from torch import nn
 from transformers import (
@@ -110,6 +118,8 @@ def add_lora(config: ModelConfig, backbone: InternVLForConditionalGeneration) ->
     """LoRA adapters on the language model's linear layers (not the vision tower, not the LM head)."""
     if config.llm_training != "lora":
         return
+    from peft import LoraConfig, inject_adapter_in_model  # imported here: 3-6 s, and tiny does not use it
+
     s = config.lora
     targets = s.target_modules if isinstance(s.target_modules, str) else list(s.target_modules)
     lora = LoraConfig(r=s.r, lora_alpha=s.alpha, lora_dropout=s.dropout, target_modules=targets)
@@ -152,7 +162,7 @@ class VLAOutput(ModelOutput):
     loss: torch.Tensor | None = None
     lm_loss: torch.Tensor | None = None  # mean cross-entropy over answer tokens
     waypoint_loss: torch.Tensor | None = None  # smooth-L1 path + smooth-L1 speed waypoints
-    logits: torch.Tensor | None = None  # (B, L, V)
+    logits: torch.Tensor | None = None  # (B, A, V): the prediction of each answer token
     path: torch.Tensor | None = None  # (B, n_path, 2) [m]
     speed_waypoints: torch.Tensor | None = None  # (B, n_speed, 2) [m]
 
@@ -165,15 +175,15 @@ class VLAPrediction:
     speed_waypoints: torch.Tensor  # (B, n_speed, 2) [m], ego frame, 0.25 s apart
     text: list[str]  # generated commentary (+ communication sentence)
     partner: list[int]  # CAV named in the communication sentence, -1 for none (always -1 for the baseline)
-    answer_ids: list[list[int]]  # the answer tokens the queries followed, </s> included
+    answer_ids: list[list[int]]  # the generated answer tokens, </s> included ([] when none was asked)
 
 
 def answer_loss(logits: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:
-    """Mean next-token cross-entropy over positions whose label is not IGNORE_INDEX (0 when none)."""
-    targets = labels[:, 1:]  # (B, L-1): token t+1 is predicted at position t
-    if not (targets != IGNORE_INDEX).any():
+    """Mean cross-entropy of the answer tokens: ``logits[:, i]`` (B, A, V) predicts ``labels[:, i]``
+    (B, A); positions labelled IGNORE_INDEX (padding) do not count (0 when there are none)."""
+    if not (labels != IGNORE_INDEX).any():
         return logits.sum() * 0.0
-    return F.cross_entropy(logits[:, :-1].flatten(0, 1), targets.flatten(), ignore_index=IGNORE_INDEX)
+    return F.cross_entropy(logits.flatten(0, 1), labels.flatten(), ignore_index=IGNORE_INDEX)
 
 
 def positions(mask: torch.Tensor) -> torch.Tensor:
@@ -257,18 +267,30 @@ class V2VVLA(nn.Module):
 
     # ---- training forward ---------------------------------------------------------------------------
     def forward(self, batch: VLABatch) -> VLAOutput:
-        """One pass over prompt + answer + waypoint queries (teacher forcing)."""
+        """One pass over prompt + waypoint queries + answer (teacher forcing; the answer when the batch has
+        one). The answer's i-th token is predicted at the position before it: the last query for the
+        first token."""
         b, length = batch.input_ids.shape
-        embeds = torch.cat([self.embed(batch), self.queries(b)], dim=1)  # (B, L+Q, H)
-        ones = batch.attention_mask.new_ones(b, self.waypoint_queries.shape[0])
-        mask = torch.cat([batch.attention_mask, ones], dim=1)  # (B, L+Q)
+        q = self.waypoint_queries.shape[0]
+        parts = [self.embed(batch), self.queries(b)]
+        masks = [batch.attention_mask, batch.attention_mask.new_ones(b, q)]
+        if batch.answer_ids is not None:  # padding (label IGNORE_INDEX) masked out
+            parts.append(self.backbone.get_input_embeddings()(batch.answer_ids))
+            masks.append(
+                torch.ones_like(batch.answer_ids)
+                if batch.labels is None
+                else (batch.labels != IGNORE_INDEX).long()
+            )
+        embeds, mask = torch.cat(parts, dim=1), torch.cat(masks, dim=1)  # (B, L+Q+A, H), (B, L+Q+A)
         lm = self.backbone.model.language_model
         states = lm(inputs_embeds=embeds, attention_mask=mask, position_ids=positions(mask)).last_hidden_state
-        logits = self.backbone.lm_head(states[:, :length])  # (B, L, V)
-        path, speed = self.waypoints(states[:, length:])  # (B, n_path, 2), (B, n_speed, 2)
-        out = VLAOutput(logits=logits, path=path, speed_waypoints=speed)
+        path, speed = self.waypoints(states[:, length : length + q])  # (B, n_path, 2), (B, n_speed, 2)
+        out = VLAOutput(path=path, speed_waypoints=speed)
+        if batch.answer_ids is not None:
+            out.logits = self.backbone.lm_head(states[:, length + q - 1 : -1])  # (B, A, V)
         if batch.labels is not None and batch.path is not None and batch.speed_waypoints is not None:
-            out.lm_loss = answer_loss(logits, batch.labels)
+            assert out.logits is not None
+            out.lm_loss = answer_loss(out.logits, batch.labels)
             out.waypoint_loss = F.smooth_l1_loss(path, batch.path) + F.smooth_l1_loss(
                 speed, batch.speed_waypoints
             )
@@ -278,89 +300,56 @@ class V2VVLA(nn.Module):
     # ---- closed-loop inference ----------------------------------------------------------------------
     @torch.no_grad()
     def predict(
-        self,
-        batch: VLABatch | list[dict[str, Any]],
-        max_new_tokens: int | None = None,
-        answers: list[list[int]] | None = None,
+        self, batch: VLABatch | list[dict[str, Any]], max_new_tokens: int | None = None
     ) -> VLAPrediction:
-        """Greedy text (until ``</s>`` or ``max_new_tokens``, default ``config.max_answer_tokens``), then
-        the waypoint queries after it in the same KV cache: the layout the model was trained on. All CAVs
-        of a tick go in one batch. ``max_new_tokens=0`` skips the text (queries right after ``</s>``).
-        ``answers`` (one token list per row, ``</s>`` included, e.g. an earlier ``answer_ids``): no
-        decoding, the queries follow these answers in one pass (a closed loop that talks at a lower rate
-        than it drives)."""
+        """The waypoints of every row from one pass over prompt + queries (all CAVs of a tick in one
+        batch), then greedy text on the same KV cache until ``</s>`` or ``max_new_tokens`` (default
+        ``config.max_answer_tokens``). ``max_new_tokens=0``: waypoints only, no decoding (the closed loop's
+        ticks between two language ticks); the waypoints do not depend on it."""
         was_training = self.training
         self.eval()
         try:
             return self._predict(
-                batch, self.config.max_answer_tokens if max_new_tokens is None else max_new_tokens, answers
+                batch, self.config.max_answer_tokens if max_new_tokens is None else max_new_tokens
             )
         finally:
             self.train(was_training)
 
-    def _predict(
-        self, batch: VLABatch | list[dict[str, Any]], max_new_tokens: int, answers: list[list[int]] | None
-    ) -> VLAPrediction:
+    def _predict(self, batch: VLABatch | list[dict[str, Any]], max_new_tokens: int) -> VLAPrediction:
         device = self.waypoint_queries.device
         batch = (self.processor(batch, with_answer=False) if isinstance(batch, list) else batch).to(device)
-        if batch.labels is not None:
+        if batch.answer_ids is not None:
             raise ValueError("predict takes prompts: batch the rows with processor(rows, with_answer=False)")
         b, q = len(batch), self.waypoint_queries.shape[0]
-        if answers is None:
-            answer, keep, cache, mask = self._greedy(batch, max_new_tokens)  # (B, n), (B, n), cache, (B, L+n)
-        else:
-            answer, keep, cache, mask = self._given(batch, answers)
-        mask = torch.cat([mask, mask.new_ones(b, q)], dim=1)  # (B, L+n+Q)
+        mask = torch.cat([batch.attention_mask, batch.attention_mask.new_ones(b, q)], dim=1)  # (B, L+Q)
+        embeds = torch.cat([self.embed(batch), self.queries(b)], dim=1)  # (B, L+Q, H)
         lm = self.backbone.model.language_model
-        states = lm(
-            inputs_embeds=self.queries(b),
+        out = lm(
+            inputs_embeds=embeds,
             attention_mask=mask,
-            position_ids=positions(mask)[:, -q:],
-            past_key_values=cache,
-        ).last_hidden_state  # (B, Q, H)
-        path, speed = self.waypoints(states)
-        answer_ids = [row[k].tolist() for row, k in zip(answer.cpu(), keep.cpu(), strict=True)]
+            position_ids=positions(mask),
+            use_cache=max_new_tokens > 0,
+        )
+        path, speed = self.waypoints(out.last_hidden_state[:, -q:])
+        answer_ids: list[list[int]] = [[] for _ in range(b)]
+        if max_new_tokens > 0:
+            answer, keep = self._greedy(out, mask, max_new_tokens)
+            answer_ids = [row[k].tolist() for row, k in zip(answer.cpu(), keep.cpu(), strict=True)]
         text = [str(self.tokenizer.decode(a, skip_special_tokens=True)).strip() for a in answer_ids]
         partner = [parse_partner(t) if self.config.cooperative else -1 for t in text]
         return VLAPrediction(
             path=path, speed_waypoints=speed, text=text, partner=partner, answer_ids=answer_ids
         )
 
-    def _given(
-        self, batch: VLABatch, answers: list[list[int]]
-    ) -> tuple[torch.Tensor, torch.Tensor, Any, torch.Tensor]:
-        """Prompt + the given answers in one pass, the same layout ``_greedy`` leaves: answers right-padded
-        with masked padding (B, n), so the queries after them see exactly these tokens."""
-        if len(answers) != len(batch) or any(len(a) == 0 for a in answers):
-            raise ValueError(f"{len(answers)} answers for {len(batch)} rows (each needs at least </s>)")
-        lm, embed = self.backbone.model.language_model, self.backbone.get_input_embeddings()
-        device = batch.input_ids.device
-        n = max(len(a) for a in answers)
-        answer = torch.full((len(batch), n), self.processor.pad_token_id, dtype=torch.long, device=device)
-        keep = torch.zeros((len(batch), n), dtype=torch.bool, device=device)
-        for i, a in enumerate(answers):
-            answer[i, : len(a)] = torch.tensor(a, device=device)
-            keep[i, : len(a)] = True
-        mask = torch.cat([batch.attention_mask, keep.long()], dim=1)  # (B, L+n)
-        embeds = torch.cat([self.embed(batch), embed(answer)], dim=1)  # (B, L+n, H)
-        out = lm(inputs_embeds=embeds, attention_mask=mask, position_ids=positions(mask), use_cache=True)
-        return answer, keep, out.past_key_values, mask
-
-    def _greedy(
-        self, batch: VLABatch, max_new_tokens: int
-    ) -> tuple[torch.Tensor, torch.Tensor, Any, torch.Tensor]:
-        """Prefill the prompt, then decode greedily, feeding each token at once. Returns the answer ids
-        (B, n) (pad after a row's ``</s>``; ``</s>`` forced after ``max_new_tokens``), which of them belong
-        to the answer (B, n) bool, the KV cache of prompt + answer, and its attention mask (B, L+n)."""
+    def _greedy(self, out: Any, mask: torch.Tensor, max_new_tokens: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """Greedy decoding after the prefill ``out`` (prompt + queries, with its KV cache) of attention mask
+        ``mask`` (B, L+Q), feeding each token at once. Returns the answer ids (B, n) (pad after a row's
+        ``</s>``; ``</s>`` forced after ``max_new_tokens``) and which of them belong to the answer (B, n)."""
         lm, head = self.backbone.model.language_model, self.backbone.lm_head
         embed = self.backbone.get_input_embeddings()
         eos, pad = self.processor.eos_token_id, self.processor.pad_token_id
-        mask = batch.attention_mask  # (B, L), grows by one column per step
-        out = lm(
-            inputs_embeds=self.embed(batch), attention_mask=mask, position_ids=positions(mask), use_cache=True
-        )
         cache = out.past_key_values
-        alive = torch.ones(len(batch), dtype=torch.bool, device=mask.device)  # no </s> yet
+        alive = torch.ones(mask.shape[0], dtype=torch.bool, device=mask.device)  # no </s> yet
         tokens, keep = [], []
         for step in range(max_new_tokens + 1):
             logits = head(out.last_hidden_state[:, -1])  # (B, V)
@@ -370,8 +359,10 @@ class V2VVLA(nn.Module):
             token = torch.where(alive, best, pad)  # (B,)
             tokens.append(token)
             keep.append(alive.clone())
-            mask = torch.cat([mask, alive.long()[:, None]], dim=1)
             alive = alive & (token != eos)
+            if not alive.any():
+                break
+            mask = torch.cat([mask, keep[-1].long()[:, None]], dim=1)
             out = lm(
                 inputs_embeds=embed(token[:, None]),
                 attention_mask=mask,
@@ -379,9 +370,7 @@ class V2VVLA(nn.Module):
                 past_key_values=cache,
                 use_cache=True,
             )
-            if not alive.any():
-                break
-        return torch.stack(tokens, dim=1), torch.stack(keep, dim=1), cache, mask
+        return torch.stack(tokens, dim=1), torch.stack(keep, dim=1)
 
     # ---- persistence ----------------------------------------------------------------------------------
     def save_pretrained(self, directory: str | Path) -> None:

@@ -11,10 +11,10 @@ append its waypoint queries after it)::
 
     <pad>... <img> <IMG_CONTEXT>*(camera tokens) </img> [<img> <IMG_CONTEXT>*(BEV tokens) </img>] \\n
     Current speed: 4.2 m/s. Target waypoint: <TARGET_POINT><TARGET_POINT>. [Other CAVs: ...] {task}
-    {answer} </s>
 
-The answer (training only) is the commentary, and for the cooperative model " Communication: " followed
-by the communication sentence or "none."; labels are -100 everywhere except on the answer and ``</s>``.
+and, for training, the answer apart (right-padded): the commentary, and for the cooperative model
+" Communication: " followed by the communication sentence or "none.", then ``</s>``. The model puts its
+waypoint queries between the two (:class:`cmudrive.model.V2VVLA`): prompt, queries, answer.
 """
 
 from __future__ import annotations
@@ -50,10 +50,11 @@ class VLABatch:
     """Tensors of one batch of ``B`` rows; ``L`` tokens per row; the ``None`` fields are training targets."""
 
     pixel_values: torch.Tensor  # (B, n_images, 3, S, S) float32, ImageNet-normalised tiles
-    input_ids: torch.Tensor  # (B, L) int64, left-padded
+    input_ids: torch.Tensor  # (B, L) int64, the prompt, left-padded
     attention_mask: torch.Tensor  # (B, L) int64, 0 on padding
     target_points: torch.Tensor  # (B, 2, 2) float32 [m], ego frame
-    labels: torch.Tensor | None = None  # (B, L) int64, IGNORE_INDEX except on answer tokens
+    answer_ids: torch.Tensor | None = None  # (B, A) int64, the answer and </s>, right-padded
+    labels: torch.Tensor | None = None  # (B, A) int64, answer_ids with IGNORE_INDEX on the padding
     path: torch.Tensor | None = None  # (B, n_path, 2) float32 [m]
     speed_waypoints: torch.Tensor | None = None  # (B, n_speed, 2) float32 [m]
     partner_label: torch.Tensor | None = None  # (B,) int64, -1 for none
@@ -92,10 +93,10 @@ def _rgb(image: Any) -> Image.Image:
     return Image.fromarray(array)
 
 
-def _normalise(image: Image.Image) -> np.ndarray:
-    """(3, S, S) float32 from an RGB image."""
-    array = np.asarray(image, np.float32) / 255.0
-    return ((array - IMAGE_MEAN) / IMAGE_STD).transpose(2, 0, 1)
+def _normalise(tiles: np.ndarray) -> np.ndarray:
+    """(..., S, S, 3) uint8 -> (..., 3, S, S) float32, ImageNet-normalised."""
+    array = (tiles.astype(np.float32) * np.float32(1.0 / 255.0) - IMAGE_MEAN) / IMAGE_STD
+    return np.ascontiguousarray(np.moveaxis(array, -1, -3))
 
 
 class VLAProcessor:
@@ -134,28 +135,42 @@ class VLAProcessor:
         return cls(config, tokenizer, side, tokens)
 
     # ---- images -------------------------------------------------------------------------------------
-    def camera_tiles(self, image: Any) -> np.ndarray:
-        """(camera_tiles, 3, S, S): bonnet rows cropped, resized to tiles*S x S, split left to right."""
+    # Resizing uses PIL's bilinear filter, which widens its support when shrinking (area-averaging, no
+    # aliasing) at 0.1 ms per image; a closed-loop tick processes 16-32 of them.
+    def _camera_uint8(self, image: Any) -> np.ndarray:
         img = _rgb(image)
         keep = max(1, round(img.height * (1.0 - self.config.bonnet_crop)))
         n, s = self.config.camera_tiles, self.image_size
-        wide = img.crop((0, 0, img.width, keep)).resize((n * s, s), Image.Resampling.BICUBIC)
-        return np.stack([_normalise(wide.crop((i * s, 0, (i + 1) * s, s))) for i in range(n)])
+        # crop first: resize(box=...) would let the filter read bonnet rows below the box
+        wide = np.asarray(img.crop((0, 0, img.width, keep)).resize((n * s, s), Image.Resampling.BILINEAR))
+        return wide.reshape(s, n, s, 3).transpose(1, 0, 2, 3)  # (n, S, S, 3), left to right
+
+    def _bev_uint8(self, image: Any) -> np.ndarray:
+        img = _rgb(image)
+        s, side = self.image_size, max(img.width, img.height)
+        w, h = max(1, round(img.width * s / side)), max(1, round(img.height * s / side))
+        square = np.zeros((s, s, 3), np.uint8)
+        top, left = (s - h) // 2, (s - w) // 2
+        square[top : top + h, left : left + w] = np.asarray(img.resize((w, h), Image.Resampling.BILINEAR))
+        return square[None]
+
+    def camera_tiles(self, image: Any) -> np.ndarray:
+        """(camera_tiles, 3, S, S): bonnet rows cropped, resized to tiles*S x S, split left to right."""
+        return _normalise(self._camera_uint8(image))
 
     def bev_tile(self, image: Any) -> np.ndarray:
-        """(1, 3, S, S): the merged BEV padded to a square with black (same metres per pixel along both
-        axes), centred, then resized."""
-        img = _rgb(image)
-        side = max(img.width, img.height)
-        square = Image.new("RGB", (side, side))
-        square.paste(img, ((side - img.width) // 2, (side - img.height) // 2))
-        return _normalise(square.resize((self.image_size, self.image_size), Image.Resampling.BICUBIC))[None]
+        """(1, 3, S, S): the merged BEV resized (same metres per pixel along both axes) and centred on a
+        black square."""
+        return _normalise(self._bev_uint8(image))
 
     def pixel_values(self, row: dict[str, Any]) -> np.ndarray:
         """(n_images, 3, S, S) of one row: camera tiles, then the merged BEV for the cooperative model."""
-        tiles = [self.camera_tiles(row["camera"])]
+        return _normalise(self._tiles_uint8(row))
+
+    def _tiles_uint8(self, row: dict[str, Any]) -> np.ndarray:
+        tiles = [self._camera_uint8(row["camera"])]
         if self.config.cooperative:
-            tiles.append(self.bev_tile(row["merged_bev"]))
+            tiles.append(self._bev_uint8(row["merged_bev"]))
         return np.concatenate(tiles)
 
     # ---- text ---------------------------------------------------------------------------------------
@@ -196,19 +211,24 @@ class VLAProcessor:
         return text
 
     def encode(self, row: dict[str, Any], with_answer: bool) -> tuple[list[int], list[int]]:
-        """Token ids and labels of one row (labels all IGNORE_INDEX without the answer)."""
-        ids = list(self.tokenizer(self.prompt(row), add_special_tokens=False)["input_ids"])
-        labels = [IGNORE_INDEX] * len(ids)
-        if with_answer:
-            lead = "" if self.config.chat_template else " "
-            answer = self.tokenizer(lead + self.answer(row), add_special_tokens=False)["input_ids"]
-            answer = [*answer[: self.config.max_answer_tokens - 1], self.eos_token_id]
-            ids += answer
-            labels += answer
+        """Prompt token ids and answer token ids (``</s>`` last; empty without the answer) of one row."""
+        return self.encode_rows([row], with_answer)[0]
+
+    def encode_rows(
+        self, rows: Sequence[dict[str, Any]], with_answer: bool
+    ) -> list[tuple[list[int], list[int]]]:
+        """:meth:`encode` of every row; one tokenizer call for all prompts (one for all answers)."""
+        prompts = self.tokenizer([self.prompt(r) for r in rows], add_special_tokens=False)["input_ids"]
         expected = self.tokens_per_image * self.config.n_images
-        if ids.count(self.image_token_id) != expected or ids.count(self.target_point_token_id) != 2:
-            raise ValueError("the prompt's image / target-point placeholders did not tokenize one to one")
-        return ids, labels
+        for ids in prompts:
+            if ids.count(self.image_token_id) != expected or ids.count(self.target_point_token_id) != 2:
+                raise ValueError("the prompt's image / target-point placeholders did not tokenize one to one")
+        if not with_answer:
+            return [(list(ids), []) for ids in prompts]
+        lead = "" if self.config.chat_template else " "
+        answers = self.tokenizer([lead + self.answer(r) for r in rows], add_special_tokens=False)["input_ids"]
+        cut = self.config.max_answer_tokens - 1
+        return [(list(p), [*a[:cut], self.eos_token_id]) for p, a in zip(prompts, answers, strict=True)]
 
     # ---- batch --------------------------------------------------------------------------------------
     def __call__(self, rows: Sequence[dict[str, Any]], with_answer: bool | None = None) -> VLABatch:
@@ -220,23 +240,26 @@ class VLAProcessor:
             raise ValueError("no rows")
         if with_answer is None:
             with_answer = "commentary" in rows[0]
-        encoded = [self.encode(r, with_answer) for r in rows]
+        encoded = self.encode_rows(rows, with_answer)
         length = max(len(ids) for ids, _ in encoded)
         input_ids = torch.full((len(rows), length), self.pad_token_id, dtype=torch.long)
-        labels = torch.full((len(rows), length), IGNORE_INDEX, dtype=torch.long)
         mask = torch.zeros((len(rows), length), dtype=torch.long)
-        for i, (ids, lab) in enumerate(encoded):  # left padding
+        for i, (ids, _) in enumerate(encoded):  # left padding: every prompt ends at position L
             input_ids[i, length - len(ids) :] = torch.tensor(ids)
-            labels[i, length - len(ids) :] = torch.tensor(lab)
             mask[i, length - len(ids) :] = 1
         batch = VLABatch(
-            pixel_values=torch.from_numpy(np.stack([self.pixel_values(r) for r in rows])),
+            pixel_values=torch.from_numpy(_normalise(np.stack([self._tiles_uint8(r) for r in rows]))),
             input_ids=input_ids,
             attention_mask=mask,
             target_points=_stack(rows, "target_points", (2, 2)),
         )
         if with_answer:
-            batch.labels = labels
+            width = max(len(a) for _, a in encoded)
+            answer_ids = torch.full((len(rows), width), self.pad_token_id, dtype=torch.long)
+            labels = torch.full((len(rows), width), IGNORE_INDEX, dtype=torch.long)
+            for i, (_, answer) in enumerate(encoded):  # right padding
+                answer_ids[i, : len(answer)] = labels[i, : len(answer)] = torch.tensor(answer)
+            batch.answer_ids, batch.labels = answer_ids, labels
             batch.path = _stack(rows, "path", (self.config.n_path, 2))
             batch.speed_waypoints = _stack(rows, "speed_waypoints", (self.config.n_speed, 2))
             batch.partner_label = torch.tensor([int(r.get("partner_label", -1)) for r in rows])

@@ -1,0 +1,104 @@
+"""Offline ablation of V2V-VLA's cooperative inputs on held-out routes: does the model use them?
+
+    python benchmarks/ablation.py --data data/train [--rows 2000] [--threads 2]
+        [--coop cmudrive/assets/models/v2v-vla-tiny] [--baseline cmudrive/assets/models/v2v-vla-baseline-tiny]
+
+The validation routes of ``cmudrive train`` (the same route-level split, seed 0), every k-th row up to
+``--rows``. The cooperative model is run on each row as it is (merged BEV, other CAVs), with the CAV's own
+occupancy drawn in place of the merged one, with an empty occupancy image, and without the other CAVs;
+the baseline as it is. For each: the mean L2 error [m] of the 20 path points and of the 10 speed
+waypoints, over all rows and over the rows where a partner sees something the ego's camera does not
+(``partner_label >= 0``, every such row of the validation routes). For the cooperative model on those rows,
+also how often its generated communication sentence names the labelled partner.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import torch
+
+from cmudrive.data.schema import packed_to_rgb
+from cmudrive.data.shards import load_shards
+from cmudrive.model import V2VVLA
+from cmudrive.model.train import COLUMNS, DrivingDataset, TrainConfig, split_routes
+
+Variant = Callable[[dict[str, Any]], dict[str, Any]]
+
+
+def errors(model: V2VVLA, rows: list[dict[str, Any]], batch: int = 64) -> tuple[float, float]:
+    """Mean path and speed-waypoint L2 errors [m] of ``model`` on ``rows``."""
+    path, speed = [], []
+    with torch.no_grad():
+        for i in range(0, len(rows), batch):
+            chunk = rows[i : i + batch]
+            pred = model.predict(chunk, max_new_tokens=0)
+            target_path = torch.tensor(np.stack([r["path"] for r in chunk]), dtype=torch.float32)
+            target_speed = torch.tensor(np.stack([r["speed_waypoints"] for r in chunk]), dtype=torch.float32)
+            path.append((pred.path - target_path).norm(dim=-1).mean(dim=1))
+            speed.append((pred.speed_waypoints - target_speed).norm(dim=-1).mean(dim=1))
+    return float(torch.cat(path).mean()), float(torch.cat(speed).mean())
+
+
+def partner_accuracy(model: V2VVLA, rows: list[dict[str, Any]], batch: int = 32) -> float:
+    """Share of ``rows`` whose generated communication sentence names their ``partner_label``."""
+    hits = 0
+    for i in range(0, len(rows), batch):
+        chunk = rows[i : i + batch]
+        pred = model.predict(chunk)
+        hits += sum(int(p == int(r["partner_label"])) for p, r in zip(pred.partner, chunk, strict=True))
+    return hits / max(len(rows), 1)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--data", required=True)
+    parser.add_argument("--rows", type=int, default=2000)
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--coop", default="cmudrive/assets/models/v2v-vla-tiny")
+    parser.add_argument("--baseline", default="cmudrive/assets/models/v2v-vla-baseline-tiny")
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    ds = load_shards(args.data, (*COLUMNS, "occupancy"))  # the own grid too, for the ablation
+    route_of = np.asarray(ds["route_id"])
+    split = TrainConfig(data=args.data, out="unused")  # cmudrive train's defaults: the same held-out routes
+    routes = split_routes(sorted(set(route_of.tolist())), split.val_fraction, split.seed)
+    val = ds.select(np.flatnonzero(np.isin(route_of, routes)))
+    data = DrivingDataset(val)
+    step = max(1, len(data) // args.rows)
+    rows = [data[i] for i in range(0, len(data), step)][: args.rows]
+    partner_rows = np.flatnonzero(np.asarray(val["partner_label"]) >= 0)
+    seen = [data[int(i)] for i in partner_rows]
+    print(
+        f"{len(routes)} validation routes, {len(val)} rows: {len(rows)} sampled, {len(seen)} with a partner"
+    )
+
+    empty = packed_to_rgb(np.zeros_like(np.asarray(rows[0]["occupancy"])))
+    variants: dict[str, Variant] = {
+        "as collected": lambda r: r,
+        "own occupancy instead of merged": lambda r: {
+            **r,
+            "merged_bev": packed_to_rgb(np.asarray(r["occupancy"])),
+        },
+        "empty occupancy image": lambda r: {**r, "merged_bev": empty},
+        "no other CAVs in the prompt": lambda r: {**r, "other_cavs": []},
+    }
+    coop = V2VVLA.from_pretrained(args.coop).eval()
+    baseline = V2VVLA.from_pretrained(args.baseline).eval()
+    print("| model, input | path L2 [m] | speed L2 [m] | path L2, partner rows | speed L2, partner rows |")
+    print("|---|---|---|---|---|")
+    for name, change in variants.items():
+        a, b = errors(coop, [change(r) for r in rows])
+        c, d = errors(coop, [change(r) for r in seen])
+        print(f"| V2V-VLA, {name} | {a:.3f} | {b:.3f} | {c:.3f} | {d:.3f} |")
+    a, b = errors(baseline, rows)
+    c, d = errors(baseline, seen)
+    print(f"| baseline | {a:.3f} | {b:.3f} | {c:.3f} | {d:.3f} |")
+    print(f"V2V-VLA names the labelled partner in {partner_accuracy(coop, seen):.1%} of the partner rows")
+
+
+if __name__ == "__main__":
+    main()
