@@ -16,12 +16,10 @@ from __future__ import annotations
 
 import argparse
 import os
-import statistics
-import time
-from collections.abc import Callable
 
 import numpy as np
 import torch
+from model_speed import timed  # benchmarks/ is on sys.path when a script in it runs
 
 from cmudrive.agents.control import WaypointController
 from cmudrive.model import V2VVLA, get_config
@@ -31,16 +29,6 @@ ANSWER = (
     "Turn left at the junction ahead. Slow down behind the red car ahead on the left. "
     "Communication: CAV 3 can see the pedestrian, which is hidden from our camera."
 )  # a long answer of the dataset's kind
-
-
-def timed(fn: Callable[[], object], repeats: int) -> float:
-    fn()  # warm-up
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
 
 
 def main() -> None:
