@@ -29,6 +29,23 @@ from cmudrive.model.train import COLUMNS, DrivingDataset, TrainConfig, split_rou
 Variant = Callable[[dict[str, Any]], dict[str, Any]]
 
 
+def held_out_rows(
+    data: str, limit: int, extra: tuple[str, ...] = ()
+) -> tuple[Any, list[dict[str, Any]], list[dict[str, Any]]]:
+    """(the validation rows of ``cmudrive train``'s default split - same routes, seed 0 -, every k-th of
+    them up to ``limit`` as decoded rows, and every row with a labelled partner as decoded rows)."""
+    ds = load_shards(data, (*COLUMNS, *extra))
+    route_of = np.asarray(ds["route_id"])
+    split = TrainConfig(data=data, out="unused")  # cmudrive train's defaults: the same held-out routes
+    routes = split_routes(sorted(set(route_of.tolist())), split.val_fraction, split.seed)
+    val = ds.select(np.flatnonzero(np.isin(route_of, routes)))
+    decoded = DrivingDataset(val)
+    step = max(1, len(decoded) // limit)
+    rows = [decoded[i] for i in range(0, len(decoded), step)][:limit]
+    seen = [decoded[int(i)] for i in np.flatnonzero(np.asarray(val["partner_label"]) >= 0)]
+    return val, rows, seen
+
+
 def errors(model: V2VVLA, rows: list[dict[str, Any]], batch: int = 64) -> tuple[float, float]:
     """Mean path and speed-waypoint L2 errors [m] of ``model`` on ``rows``."""
     path, speed = [], []
@@ -62,19 +79,9 @@ def main() -> None:
     parser.add_argument("--baseline", default="cmudrive/assets/models/v2v-vla-baseline-tiny")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
-    ds = load_shards(args.data, (*COLUMNS, "occupancy"))  # the own grid too, for the ablation
-    route_of = np.asarray(ds["route_id"])
-    split = TrainConfig(data=args.data, out="unused")  # cmudrive train's defaults: the same held-out routes
-    routes = split_routes(sorted(set(route_of.tolist())), split.val_fraction, split.seed)
-    val = ds.select(np.flatnonzero(np.isin(route_of, routes)))
-    data = DrivingDataset(val)
-    step = max(1, len(data) // args.rows)
-    rows = [data[i] for i in range(0, len(data), step)][: args.rows]
-    partner_rows = np.flatnonzero(np.asarray(val["partner_label"]) >= 0)
-    seen = [data[int(i)] for i in partner_rows]
-    print(
-        f"{len(routes)} validation routes, {len(val)} rows: {len(rows)} sampled, {len(seen)} with a partner"
-    )
+    val, rows, seen = held_out_rows(args.data, args.rows, extra=("occupancy",))  # own grid for the ablation
+    routes = len(set(val["route_id"]))
+    print(f"{routes} validation routes, {len(val)} rows: {len(rows)} sampled, {len(seen)} with a partner")
 
     empty = packed_to_rgb(np.zeros_like(np.asarray(rows[0]["occupancy"])))
     variants: dict[str, Variant] = {

@@ -819,6 +819,19 @@ def train_model(
             "the collection); fewer teach a model fed its speed to start again"
         ),
     ] = 1.0,
+    communication_repeat: Annotated[
+        int,
+        typer.Option(
+            min=1,
+            help="times each row with a communication sentence (1.2 %% of the collection) is seen per epoch",
+        ),
+    ] = 1,
+    speed_input: Annotated[
+        bool, typer.Option(help="the prompt states the CAV's speed (SimLingo); --no-speed-input: never")
+    ] = True,
+    speed_dropout: Annotated[
+        float, typer.Option(help="share of training rows whose prompt leaves the speed out")
+    ] = 0.0,
     num_workers: Annotated[int, typer.Option(min=0, help="DataLoader worker processes")] = 0,
     mixed_precision: Annotated[
         str, typer.Option(help="auto (bf16/fp16 on GPUs, none on CPU), no, fp16, bf16")
@@ -850,6 +863,9 @@ def train_model(
             log_every=log_every,
             val_fraction=val_fraction,
             standing_keep=standing_keep,
+            communication_repeat=communication_repeat,
+            speed_input=speed_input,
+            speed_dropout=speed_dropout,
             num_workers=num_workers,
             mixed_precision=mixed_precision,
             augment=YawAugment(prob=augment_prob),

@@ -103,6 +103,16 @@ def test_other_cavs_in_range_nearest_first(coop: VLAProcessor) -> None:
     assert many.count("CAV ") == 4 and "CAV 3 " in many and "CAV 4 " not in many
 
 
+def test_speed_is_stated_unless_the_configuration_or_a_dropped_row_leaves_it_out(coop: VLAProcessor) -> None:
+    row = {**make_row(1), "speed": 4.24}
+    assert "Current speed: 4.2 m/s. Target waypoint:" in coop.prompt(row)
+    assert "speed" not in coop.prompt({**row, "speed": None})  # speed dropout in training
+    blind = VLAProcessor.from_config(get_config("tiny", speed_in_prompt=False))
+    assert "speed" not in blind.prompt(row) and "Target waypoint:" in blind.prompt(row)
+    # same prompt at any speed: nothing of the speed reaches the model
+    assert torch.equal(blind([row]).input_ids, blind([{**row, "speed": 0.0}]).input_ids)
+
+
 def test_baseline_takes_no_bev_no_other_cavs_no_communication(baseline: VLAProcessor) -> None:
     row = make_row(1)
     batch = baseline([row])

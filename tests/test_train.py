@@ -3,6 +3,7 @@ moved together), exact resumption, logs, the CLI and the baseline flag."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import shutil
@@ -24,7 +25,16 @@ from cmudrive.data.schema import packed_to_rgb
 from cmudrive.data.synthetic import write_synthetic_shards
 from cmudrive.model import V2VVLA
 from cmudrive.model.augment import YawAugment, bev_codes, rotate_camera, rotate_sample, rotated_frame
-from cmudrive.model.train import DrivingDataset, TrainConfig, keep_rows, load_split, split_routes, train
+from cmudrive.model.train import (
+    DrivingDataset,
+    TrainConfig,
+    communication_rows,
+    keep_rows,
+    load_split,
+    repeat_rows,
+    split_routes,
+    train,
+)
 from cmudrive.sensors.camera import CameraConfig
 
 torch.set_num_threads(1)
@@ -62,6 +72,37 @@ def test_standing_rows_are_thinned_and_every_moving_or_starting_row_kept() -> No
     assert np.array_equal(keep, keep_rows(ds, 0.25, seed=0)) and keep_rows(ds, 1.0, seed=0).all()
     with pytest.raises(ValueError, match="standing_keep"):
         TrainConfig(data="d", out="o", standing_keep=0.0)
+
+
+def test_communication_rows_repeat_in_training_not_in_validation(data: Path) -> None:
+    base = TrainConfig(data=str(data), out="unused", val_fraction=0.3)
+    train_rows, val_rows, _ = load_split(base)
+    talk = int(communication_rows(train_rows).sum())
+    assert 0 < talk < len(train_rows)  # the synthetic shards label ~10 % of the rows with a partner
+    more_train, more_val, _ = load_split(dataclasses.replace(base, communication_repeat=4))
+    assert len(more_train) == len(train_rows) + 3 * talk and communication_rows(more_train).sum() == 4 * talk
+    assert len(more_val) == len(val_rows)  # validation measures the collection as it is
+    assert repeat_rows(np.array([7, 8, 9]), np.array([False, True, False]), 3).tolist() == [7, 8, 8, 8, 9]
+    with pytest.raises(ValueError, match="communication_repeat"):
+        TrainConfig(data="d", out="o", communication_repeat=0)
+
+
+def test_speed_dropout_hides_a_share_of_the_speeds_the_same_way_every_time(data: Path) -> None:
+    train_rows, _, _ = load_split(TrainConfig(data=str(data), out="unused", val_fraction=0.0))
+    aug = YawAugment(prob=1.0)
+    dropped = DrivingDataset(train_rows, aug, seed=1, speed_dropout=0.5)
+    hidden = [dropped[i]["speed"] is None for i in range(len(train_rows))]
+    assert 0.25 < np.mean(hidden) < 0.75
+    assert hidden == [dropped[i]["speed"] is None for i in range(len(train_rows))]
+    kept = DrivingDataset(train_rows, aug, seed=1)  # the augmentation does not change with the dropout
+    assert all(np.array_equal(kept[i]["path"], dropped[i]["path"]) for i in range(5))
+    assert all(kept[i]["speed"] is not None for i in range(len(train_rows)))
+    with pytest.raises(ValueError, match="speed_dropout"):
+        TrainConfig(data="d", out="o", speed_dropout=1.0)
+    with pytest.raises(ValueError, match="speed_input"):
+        TrainConfig(data="d", out="o", speed_dropout=0.5, speed_input=False)
+    blind = TrainConfig(data="d", out="o", speed_input=False).model_config()
+    assert not blind.speed_in_prompt and TrainConfig(data="d", out="o").model_config().speed_in_prompt
 
 
 # ---- augmentation -----------------------------------------------------------------------------------

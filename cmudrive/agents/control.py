@@ -75,6 +75,12 @@ def desired_speed(speed_waypoints: np.ndarray) -> np.ndarray:
     return np.linalg.norm(speed_waypoints[:, 2] - speed_waypoints[:, 0], axis=-1) / (2 * SPEED_WAYPOINT_DT)
 
 
+def brakes(speed: np.ndarray, desired: np.ndarray) -> np.ndarray:
+    """(n,) bool: SimLingo's brake rule at ``speed`` [m/s] for ``desired`` speeds (n,) [m/s]: a desired
+    speed below 0.4 m/s, or one that the CAV exceeds by more than 10 %."""
+    return (desired < BRAKE_SPEED) | (speed > OVERSPEED * desired)
+
+
 def point_along(path: np.ndarray, distance: np.ndarray) -> np.ndarray:
     """(n, 2) the point ``distance`` (n,) [m] along each polyline that starts at the origin and runs through
     ``path`` (n, P, 2): the look-ahead point of SimLingo's path resampled every 0.1 m (its last point when the
@@ -115,7 +121,7 @@ class WaypointController:
             self.steer_pid(rows, heading_error(np.zeros((len(rows), 2)), zeros, target)), -1.0, 1.0
         )
         desired = desired_speed(speed_waypoints)
-        brake = (desired < BRAKE_SPEED) | (speed > OVERSPEED * desired)
+        brake = brakes(speed, desired)
         error = np.clip(desired - speed, 0.0, MAX_SPEED_ERROR)
         throttle = np.where(brake, 0.0, np.clip(self.speed_pid(rows, error), 0.0, 1.0))
         # creep: a CAV that has stood for CREEP_AFTER ticks rolls for CREEP_TICKS

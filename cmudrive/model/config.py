@@ -95,6 +95,9 @@ class ModelConfig:
     bonnet_crop: float = 4.8 / 16  # fraction of the camera image cut off at the bottom (SimLingo)
     target_point_hidden: tuple[int, ...] = (256, 512)  # MLP 2 -> ... -> LLM hidden, ReLU
     target_point_scale: float = 10.0  # [m] target points are divided by this before the MLP
+    # the prompt states the CAV's speed (SimLingo); False: the model sees no speed and must judge from its
+    # images whether to go (a speed-fed model copies its speed: "standing stays standing", docs/model.md)
+    speed_in_prompt: bool = True
     max_other_cavs: int = 8  # the nearest ones are listed in the prompt
     other_cavs_range_m: float = 70.0  # [m] CAVs farther than this are not listed (V2V range)
     task_prompt: str = "What should the ego do next?"

@@ -10,11 +10,13 @@ Token layout of one row (left-padded, so that every row ends at the same positio
 append its waypoint queries after it)::
 
     <pad>... <img> <IMG_CONTEXT>*(camera tokens) </img> [<img> <IMG_CONTEXT>*(BEV tokens) </img>] \\n
-    Current speed: 4.2 m/s. Target waypoint: <TARGET_POINT><TARGET_POINT>. [Other CAVs: ...] {task}
+    [Current speed: 4.2 m/s.] Target waypoint: <TARGET_POINT><TARGET_POINT>. [Other CAVs: ...] {task}
 
-and, for training, the answer apart (right-padded): the commentary, and for the cooperative model
-" Communication: " followed by the communication sentence or "none.", then ``</s>``. The model puts its
-waypoint queries between the two (:class:`cmudrive.model.V2VVLA`): prompt, queries, answer.
+(the speed is left out by a configuration with ``speed_in_prompt=False``, and from a training row whose
+``speed`` is ``None``: speed dropout) and, for training, the answer apart (right-padded): the commentary,
+and for the cooperative model " Communication: " followed by the communication sentence or "none.", then
+``</s>``. The model puts its waypoint queries between the two (:class:`cmudrive.model.V2VVLA`): prompt,
+queries, answer.
 """
 
 from __future__ import annotations
@@ -186,7 +188,9 @@ class VLAProcessor:
         """The prompt text of one row, image placeholders included."""
         ctx = IMG_CONTEXT * self.tokens_per_image
         images = IMG_START + ctx * self.config.camera_tiles + IMG_END
-        text = f"Current speed: {float(row['speed']):.1f} m/s. Target waypoint: {TARGET_POINT}{TARGET_POINT}."
+        text = f"Target waypoint: {TARGET_POINT}{TARGET_POINT}."
+        if self.config.speed_in_prompt and row.get("speed") is not None:  # None: dropped in training
+            text = f"Current speed: {float(row['speed']):.1f} m/s. {text}"
         if self.config.cooperative:
             images += IMG_START + ctx + IMG_END
             text += " " + self.others_text(row.get("other_cavs") or [])

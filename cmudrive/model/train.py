@@ -89,6 +89,11 @@ class TrainConfig:
     # 2.5 s of speed waypoints): 47 % of the collected rows, against 4 % that stand and then start; a
     # model fed speed learns "standing stays standing" from that prior and never starts (docs/model.md)
     standing_keep: float = 1.0
+    # [-] times each row with a communication sentence (a partner sees what the ego does not) appears per
+    # epoch: 1.2 % of the collection, too few for the partner choice to be learnt at all (docs/model.md)
+    communication_repeat: int = 1
+    speed_input: bool = True  # the prompt states the CAV's speed (SimLingo); False: no speed anywhere
+    speed_dropout: float = 0.0  # [-] share of training rows whose prompt leaves the speed out
     val_batches: int = 50  # at most this many batches per validation
     seed: int = 0
     num_workers: int = 0  # DataLoader worker processes (image decoding, augmentation, tokenising)
@@ -102,7 +107,18 @@ class TrainConfig:
             raise ValueError(f"val_fraction must be in [0, 1), got {self.val_fraction}")
         if not 0.0 < self.standing_keep <= 1.0:
             raise ValueError(f"standing_keep must be in (0, 1], got {self.standing_keep}")
-        for name in ("epochs", "batch_size", "save_every", "log_every", "keep_checkpoints"):
+        if not 0.0 <= self.speed_dropout < 1.0:
+            raise ValueError(f"speed_dropout must be in [0, 1), got {self.speed_dropout}")
+        if self.speed_dropout and not self.speed_input:
+            raise ValueError("speed_dropout needs speed_input (a model without speed has nothing to drop)")
+        for name in (
+            "epochs",
+            "batch_size",
+            "save_every",
+            "log_every",
+            "keep_checkpoints",
+            "communication_repeat",
+        ):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
         if self.max_steps is not None and self.max_steps < 1:
@@ -113,7 +129,9 @@ class TrainConfig:
         return self.lr if self.lr is not None else DEFAULT_LR.get(self.model, 3e-5)
 
     def model_config(self) -> ModelConfig:
-        extra = {"pretrained_path": self.pretrained_path} if self.pretrained_path else {}
+        extra: dict[str, Any] = {"pretrained_path": self.pretrained_path} if self.pretrained_path else {}
+        if not self.speed_input:
+            extra["speed_in_prompt"] = False
         return get_config(self.model, cooperative=self.cooperative, **extra)
 
     def to_dict(self) -> dict[str, Any]:
@@ -136,6 +154,8 @@ def load_split(config: TrainConfig) -> tuple[Any, Any, list[str]]:
     val_routes = split_routes(sorted(set(route_of.tolist())), config.val_fraction, config.seed)
     is_val = np.isin(route_of, val_routes)
     train_rows = np.flatnonzero(~is_val & keep_rows(ds, config.standing_keep, config.seed))
+    if config.communication_repeat > 1:
+        train_rows = repeat_rows(train_rows, communication_rows(ds)[train_rows], config.communication_repeat)
     return ds.select(train_rows), ds.select(np.flatnonzero(is_val)), val_routes
 
 
@@ -162,6 +182,17 @@ def keep_rows(ds: Any, standing_keep: float, seed: int) -> np.ndarray:
     return ~standing | drawn
 
 
+def communication_rows(ds: Any) -> np.ndarray:
+    """(N,) bool: rows labelled with a partner to talk to (``partner_label`` >= 0)."""
+    return np.asarray(ds["partner_label"]) >= 0  # through the dataset: a selection's rows, in its order
+
+
+def repeat_rows(rows: np.ndarray, chosen: np.ndarray, times: int) -> np.ndarray:
+    """``rows`` with each of the ``chosen`` ones (bool per row) there ``times`` times, order kept (the
+    epoch sampler shuffles)."""
+    return np.repeat(rows, np.where(chosen, times, 1))
+
+
 def split_routes(routes: Sequence[str], val_fraction: float, seed: int) -> list[str]:
     """The held-out route ids: ``ceil(val_fraction * routes)``, drawn with ``seed``; none when there is only
     one route (it must train)."""
@@ -174,13 +205,17 @@ def split_routes(routes: Sequence[str], val_fraction: float, seed: int) -> list[
 
 class DrivingDataset(Dataset):
     """Rows of an Arrow-backed ``datasets.Dataset`` as dicts, images decoded when a row is read; training
-    rows are rotated (:class:`YawAugment`) with a generator seeded by (seed, epoch, index), so a row's
+    rows are rotated (:class:`YawAugment`) and, a ``speed_dropout`` share of them, stripped of their speed
+    (``None``: the prompt leaves it out), with generators seeded by (seed, epoch, index), so a row's
     augmentation does not depend on workers, order or resumption."""
 
-    def __init__(self, table: Any, augment: YawAugment | None = None, seed: int = 0) -> None:
+    def __init__(
+        self, table: Any, augment: YawAugment | None = None, seed: int = 0, speed_dropout: float = 0.0
+    ) -> None:
         self.table = table
         self.augment = augment
         self.seed = seed
+        self.speed_dropout = speed_dropout
         self.epoch = 0
 
     def set_epoch(self, epoch: int) -> None:
@@ -194,6 +229,10 @@ class DrivingDataset(Dataset):
         if self.augment is not None:
             rng = np.random.default_rng([self.seed, self.epoch, int(index)])
             row = rotate_sample(row, self.augment.draw(rng))
+        if self.speed_dropout and np.random.default_rng([self.seed, self.epoch, int(index), 1]).random() < (
+            self.speed_dropout
+        ):
+            row["speed"] = None
         return row
 
 
@@ -262,7 +301,7 @@ class Trainer:
         self.accelerator = acc = Accelerator(mixed_precision=mixed_precision(config.mixed_precision))
         set_seed(config.seed)
         model = V2VVLA.from_config(config.model_config())
-        self.train_set = DrivingDataset(train_rows, config.augment, config.seed)
+        self.train_set = DrivingDataset(train_rows, config.augment, config.seed, config.speed_dropout)
         self.sampler = EpochSampler(len(self.train_set), config.seed)
         # the loader first: its prepared length is the per-process batches of an epoch
         self.loader = acc.prepare(_loader(self.train_set, self.sampler, model, config))
