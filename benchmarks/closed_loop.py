@@ -18,6 +18,7 @@ import os
 import statistics
 import sys
 import time
+from typing import Any
 
 
 def main() -> None:
@@ -46,7 +47,7 @@ def main() -> None:
     factory = agent_factory(load_agent_class(args.agent), options)
 
     spent = {"agent": [0.0] * (args.ticks + 1), "sim": [0.0] * (args.ticks + 1)}
-    state = {"phase": "setup", "since": time.perf_counter(), "tick": 0}
+    state: dict[str, Any] = {"phase": "setup", "since": time.perf_counter(), "tick": 0}
 
     def phase(name: str) -> None:
         now = time.perf_counter()
