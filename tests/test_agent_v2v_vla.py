@@ -37,6 +37,7 @@ from cmudrive.model import V2VVLA, get_config
 from cmudrive.sensors.occupancy import occupancy_to_rgb
 from cmudrive.sim.background import BackgroundConfig
 from cmudrive.sim.dynamics import Controls
+from tests.model_rows import make_row
 
 torch.set_num_threads(1)
 EMPTY = EvalConfig(tick_cap=12, background=BackgroundConfig(vehicles=0, pedestrians=0))
@@ -131,6 +132,21 @@ def test_the_committed_checkpoints_load_and_are_small(cooperative: bool) -> None
     assert (path / "model.safetensors").stat().st_size < 20e6  # the issue's limit for committed weights
     model = V2VVLA.from_pretrained(path)
     assert model.config.name == "tiny" and model.config.cooperative is cooperative
+
+
+@pytest.mark.parametrize("cooperative", [True, False])
+def test_the_committed_no_speed_checkpoints_never_read_the_speed(cooperative: bool) -> None:
+    """The ``--no-speed-input`` pair of the README's experiment: same waypoints at 0 and at 8 m/s."""
+    name = "v2v-vla-tiny-no-speed" if cooperative else "v2v-vla-baseline-tiny-no-speed"
+    path = v2v_vla.MODELS / name
+    assert (path / "model.safetensors").stat().st_size < 20e6
+    model = V2VVLA.from_pretrained(path).eval()
+    assert model.config.cooperative is cooperative and not model.config.speed_in_prompt
+    rows = [make_row(0), make_row(1)]
+    with torch.no_grad():
+        standing = model.predict([{**r, "speed": 0.0} for r in rows], max_new_tokens=0)
+        fast = model.predict([{**r, "speed": 8.0} for r in rows], max_new_tokens=0)
+    assert torch.equal(standing.speed_waypoints, fast.speed_waypoints)
 
 
 def test_agent_options_are_checked_against_the_constructor(checkpoints: dict[str, Path]) -> None:

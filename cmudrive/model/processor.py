@@ -189,7 +189,7 @@ class VLAProcessor:
         ctx = IMG_CONTEXT * self.tokens_per_image
         images = IMG_START + ctx * self.config.camera_tiles + IMG_END
         text = f"Target waypoint: {TARGET_POINT}{TARGET_POINT}."
-        if self.config.speed_in_prompt and row.get("speed") is not None:  # None: dropped in training
+        if self.config.speed_in_prompt and row["speed"] is not None:  # None: dropped in training
             text = f"Current speed: {float(row['speed']):.1f} m/s. {text}"
         if self.config.cooperative:
             images += IMG_START + ctx + IMG_END

@@ -229,10 +229,10 @@ class DrivingDataset(Dataset):
         if self.augment is not None:
             rng = np.random.default_rng([self.seed, self.epoch, int(index)])
             row = rotate_sample(row, self.augment.draw(rng))
-        if self.speed_dropout and np.random.default_rng([self.seed, self.epoch, int(index), 1]).random() < (
-            self.speed_dropout
-        ):
-            row["speed"] = None
+        if self.speed_dropout:
+            draw = np.random.default_rng([self.seed, self.epoch, int(index), 1]).random()
+            if draw < self.speed_dropout:
+                row["speed"] = None
         return row
 
 
