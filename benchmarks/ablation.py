@@ -46,18 +46,27 @@ def held_out_rows(
     return val, rows, seen
 
 
-def errors(model: V2VVLA, rows: list[dict[str, Any]], batch: int = 64) -> tuple[float, float]:
-    """Mean path and speed-waypoint L2 errors [m] of ``model`` on ``rows``."""
+def predicted_waypoints(model: V2VVLA, rows: list[dict[str, Any]], batch: int = 64) -> tuple[Any, Any]:
+    """(path (N, 20, 2), speed waypoints (N, 10, 2)) [m], float32 tensors: ``model``'s waypoints for
+    ``rows``, in batches, no language."""
     path, speed = [], []
     with torch.no_grad():
         for i in range(0, len(rows), batch):
-            chunk = rows[i : i + batch]
-            pred = model.predict(chunk, max_new_tokens=0)
-            target_path = torch.tensor(np.stack([r["path"] for r in chunk]), dtype=torch.float32)
-            target_speed = torch.tensor(np.stack([r["speed_waypoints"] for r in chunk]), dtype=torch.float32)
-            path.append((pred.path - target_path).norm(dim=-1).mean(dim=1))
-            speed.append((pred.speed_waypoints - target_speed).norm(dim=-1).mean(dim=1))
-    return float(torch.cat(path).mean()), float(torch.cat(speed).mean())
+            pred = model.predict(rows[i : i + batch], max_new_tokens=0)
+            path.append(pred.path.float())
+            speed.append(pred.speed_waypoints.float())
+    return torch.cat(path), torch.cat(speed)
+
+
+def errors(model: V2VVLA, rows: list[dict[str, Any]]) -> tuple[float, float]:
+    """Mean path and speed-waypoint L2 errors [m] of ``model`` on ``rows``."""
+    path, speed = predicted_waypoints(model, rows)
+    target_path = torch.tensor(np.stack([r["path"] for r in rows]), dtype=torch.float32)
+    target_speed = torch.tensor(np.stack([r["speed_waypoints"] for r in rows]), dtype=torch.float32)
+    return (
+        float((path - target_path).norm(dim=-1).mean()),
+        float((speed - target_speed).norm(dim=-1).mean()),
+    )
 
 
 def partner_accuracy(model: V2VVLA, rows: list[dict[str, Any]], batch: int = 32) -> float:

@@ -16,23 +16,13 @@ drives" rows; one that does not see the road stops in few of the "moves, expert 
 from __future__ import annotations
 
 import argparse
-from typing import Any
 
 import numpy as np
 import torch
-from ablation import held_out_rows
+from ablation import held_out_rows, predicted_waypoints
 
 from cmudrive.agents.control import STOPPED_SPEED, brakes, desired_speed
 from cmudrive.model import V2VVLA
-
-
-def predicted_waypoints(model: V2VVLA, rows: list[dict[str, Any]], batch: int = 64) -> np.ndarray:
-    """(N, 10, 2) [m] the model's speed waypoints for ``rows``."""
-    out = []
-    with torch.no_grad():
-        for i in range(0, len(rows), batch):
-            out.append(model.predict(rows[i : i + batch], max_new_tokens=0).speed_waypoints.float().numpy())
-    return np.concatenate(out)
 
 
 def decision_table(speed: np.ndarray, expert: np.ndarray, model: np.ndarray) -> dict[str, tuple[float, int]]:
@@ -78,7 +68,9 @@ def main() -> None:
     tables = {}
     for path in checkpoints:
         model = V2VVLA.from_pretrained(path).eval()
-        tables[path] = decision_table(speed, expert, predicted_waypoints(model, rows).astype(np.float64))
+        tables[path] = decision_table(
+            speed, expert, predicted_waypoints(model, rows)[1].numpy().astype(np.float64)
+        )
     names = list(next(iter(tables.values())))
     counts = next(iter(tables.values()))
     print(f"{len(rows)} held-out rows; share of rows where the model decides as the expert:")
