@@ -300,3 +300,29 @@ def test_snapshot_columns_follow_actors_that_come_and_go(mini_net: Path, mini: R
         world.add_layer_actor("thing", "parked_car", 400.0, 400.0, 0.0, role=Role.PROP)
         (third,) = drive(world, 1)
         assert third.length[third.index_of("thing")] > cone + 2.0  # [m] a car, not a cone
+
+
+def test_cav_off_the_road_leaves_sumo_and_comes_back_on_it(mini_net: Path, mini: RoadMap) -> None:
+    """A CAV that turns off road C-E (30 m into the open) is out of SUMO, lane -1, while it is there
+    (SUMO could only put it on the nearest lane, where it is not); set back on its lane it is in SUMO
+    again and a SUMO car coming up behind it stops 1-8 m short of it."""
+    import libsumo
+
+    with make_world(mini_net, mini) as world:
+        world.add_cav(route_from(mini, "CE_1", 60.0, "CE_1", 190.0), speed=8.0)
+        start = (float(world.cav_state.x[0]), float(world.cav_state.y[0]), float(world.cav_state.yaw[0]))
+        assert "cav0" in libsumo.vehicle.getIDList()
+        drive(world, 20, steer=1.0, throttle=0.3)  # a hard turn off the road, then straight on
+        off = drive(world, 60, throttle=0.3)[-1]
+        cav = off.index_of("cav0")
+        assert abs(off.y[cav] - start[1]) > 15.0  # well away from the road
+        assert "cav0" not in libsumo.vehicle.getIDList() and off.lane[cav] == -1
+        st = world.cav_state  # put it back where it started, standing
+        st.x[0], st.y[0], st.yaw[0], st.speed[0] = start[0], start[1], start[2], 0.0
+        world.sumo.add_vehicle("car", "car", ["CE"], Role.BACKGROUND, depart_pos=5.0, depart_speed=8.0)
+        snaps, events = drive_counting(world, 400, brake=1.0)
+        last = snaps[-1]
+        assert "cav0" in libsumo.vehicle.getIDList() and last.lane[last.index_of("cav0")] >= 0
+        cav, car = last.index_of("cav0"), last.index_of("car")
+        gap = (last.x[cav] - 0.5 * last.length[cav]) - (last.x[car] + 0.5 * last.length[car])
+        assert last.speed[car] < 0.05 and 1.0 < gap < 8.0 and events == 0

@@ -246,7 +246,8 @@ class _Running:
         agent_fault = self.phase() in ("setup", "agent")
         status = STATUS_AGENT_CRASHED if agent_fault else STATUS_SIM_CRASHED
         why = verdict or f"worker process died (exit code {self.proc.exitcode})"
-        message = f"route {self.task.spec.id}: {why} while {'the agent' if agent_fault else 'our code'} ran"
+        where = "the agent" if agent_fault else "the simulator (libsumo's step or our world and criteria)"
+        message = f"route {self.task.spec.id}: {why} while {where} ran"
         if self.partial is None:
             record = crashed_record(self.task.spec, RuntimeError(message))
             record.status = status

@@ -43,6 +43,7 @@ if TYPE_CHECKING:
     from cmudrive.sim.background import BackgroundActivity
 
 TICK_PHASES = ("cavs", "sumo_step", "background", "snapshot", "collisions")  # World.timing keys [s]
+OFF_ROAD_RETURN = 3.0  # [m] a CAV out of SUMO (it was off the road) re-enters this close to a driving lane
 COLLISION_HOLD = 5.0  # [s] a SUMO actor that hit something waits this long before driving on
 MAX_YAW_TO_LANE = np.radians(15.0)  # [rad] a SUMO vehicle on a normal lane points at most this far off it
 BRAKE_LIGHT_THRESHOLD = 0.05  # brake input above which a CAV shows brake lights
@@ -246,16 +247,46 @@ class World:
         self._push_cavs(np.array([i]))
 
     def _push_cavs(self, rows: np.ndarray) -> None:
-        """Push the CAVs at ``rows`` (sorted indices) into SUMO."""
+        """Push the CAVs at ``rows`` (sorted indices) into SUMO.
+
+        A CAV off the road (no lane of its class within MATCH_RADIUS) leaves SUMO, and comes back once a
+        driving lane of our map is within OFF_ROAD_RETURN of it. SUMO can only put such a CAV on the
+        nearest lane, up to 100 m away with its lateral offset clamped: a phantom that blocks SUMO
+        traffic where the CAV is not, and with the sublane model a state that libsumo 1.28 can crash on
+        many steps later (a segfault in its lane changer once a bicycle came up behind a CAV that had
+        stood 6 m off its lane for minutes on a Town03 shoulder; the same SUMO state with the CAV
+        removed and added again ran on; docs/simulator.md). Our collision check sees the CAV wherever
+        it is, so SUMO traffic that hits it off the road is still a collision."""
+        if not self._cav_in_sumo.issuperset([self.cav_ids[i] for i in rows.tolist()]):
+            rows = self._return_to_sumo(rows)
         st = self.cav_state
         pick: slice | np.ndarray
         ids, pick = self.cav_ids, slice(None)  # every CAV (the common case): views, no copies
         if len(rows) != len(self.cav_ids):
             ids, pick = [self.cav_ids[i] for i in rows], rows
+        if not ids:
+            return
         length = np.full(len(ids), ACTOR_TYPES["cav"].length)
-        self._cav_off_road[pick] = self.sumo.move_vehicles(
-            ids, st.x[pick], st.y[pick], st.yaw[pick], st.speed[pick], length
+        off_road = self.sumo.move_vehicles(ids, st.x[pick], st.y[pick], st.yaw[pick], st.speed[pick], length)
+        self._cav_off_road[pick] = off_road
+        for k in np.flatnonzero(off_road).tolist():
+            remove_from_sumo(ids[k])
+            self._cav_in_sumo.discard(ids[k])
+
+    def _return_to_sumo(self, rows: np.ndarray) -> np.ndarray:
+        """Re-insert the CAVs at ``rows`` that are out of SUMO and back near a driving lane; returns the
+        rows still to push (in SUMO, not just inserted: an insertion pushes its CAV)."""
+        out = np.array([self.cav_ids[i] not in self._cav_in_sumo for i in rows.tolist()], bool)
+        st = self.cav_state
+        back = (
+            self.map.index.nearest_lane(
+                np.stack([st.x[rows[out]], st.y[rows[out]]], axis=1), max_distance=OFF_ROAD_RETURN
+            ).lane
+            >= 0
         )
+        for i in rows[out][back].tolist():
+            self._insert_cav(i)
+        return rows[~out]
 
     # ------------------------------------------------------------------ scenario actors and props
     def add_layer_actor(
