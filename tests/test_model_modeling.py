@@ -14,7 +14,7 @@ pytest.importorskip("peft", reason="the model needs the 'model' extra (torch, tr
 import torch
 
 from cmudrive.model import V2VVLA, VLABatch, get_config
-from cmudrive.model.modeling import answer_loss
+from cmudrive.model.modeling import answer_loss, positions, query_states
 from cmudrive.model.processor import IGNORE_INDEX
 from tests.model_rows import make_row, rows
 
@@ -154,6 +154,36 @@ def test_waypoints_do_not_wait_for_language(model: V2VVLA) -> None:
     assert torch.allclose(silent.speed_waypoints, talking.speed_waypoints, atol=1e-5)
 
 
+@pytest.mark.parametrize(
+    "overrides",
+    [{}, {"text": {"num_layers": 3, "num_heads": 4, "num_kv_heads": 1}}, {"llm_training": "lora"}],
+    ids=["tiny", "3-layer-gqa", "lora"],
+)
+def test_query_states_equal_the_full_pass_at_the_queries(overrides: dict[str, object]) -> None:
+    """The silent ticks' pass (the last layer at the queries alone) gives the full pass's final states at
+    the query positions, for rows of different prompt lengths (left padding), grouped-query attention
+    and LoRA adapters (made non-zero, so that skipping them would show)."""
+    model = tiny(**overrides)
+    with torch.no_grad():
+        for name, p in model.named_parameters():
+            if "lora_B" in name:
+                p.normal_(0.0, 0.05)
+    prompts = [{k: v for k, v in r.items() if k != "commentary"} for r in rows(3)]
+    batch = model.processor(prompts, with_answer=False)
+    q = model.waypoint_queries.shape[0]
+    mask = torch.cat([batch.attention_mask, batch.attention_mask.new_ones(3, q)], dim=1)
+    assert (batch.attention_mask == 0).any()  # the rows are padded to a common length
+    lm = model.backbone.model.language_model
+    layers = lm.layers
+    with torch.no_grad():
+        embeds = torch.cat([model.embed(batch), model.queries(3)], dim=1)
+        full = lm(inputs_embeds=embeds, attention_mask=mask, position_ids=positions(mask)).last_hidden_state
+        fast = query_states(lm, embeds, mask, q)
+    assert fast.shape == (3, q, full.shape[-1])
+    assert torch.allclose(fast, full[:, -q:], atol=1e-5)
+    assert lm.layers is layers and not isinstance(lm.norm, torch.nn.Identity)  # the model is put back
+
+
 def test_lora_adapts_every_linear_layer_of_the_llm_only() -> None:
     model = tiny(llm_training="lora", lora={"r": 4, "alpha": 8})
     lm = model.backbone.model.language_model
@@ -208,3 +238,7 @@ def test_a_batch_predicts_what_its_rows_predict_alone(model: V2VVLA) -> None:
         alone = model.predict([row], max_new_tokens=5)
         assert torch.allclose(alone.path[0], together.path[i], atol=1e-4)
         assert alone.answer_ids[0] == together.answer_ids[i]
+    silent = model.predict(prompts, max_new_tokens=0)  # the waypoints-only pass pads the same way
+    for i, row in enumerate(prompts):
+        alone_silent = model.predict([row], max_new_tokens=0)
+        assert torch.allclose(alone_silent.speed_waypoints[0], silent.speed_waypoints[i], atol=1e-4)

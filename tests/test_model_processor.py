@@ -12,7 +12,7 @@ pytest.importorskip("transformers", reason="the model needs the 'model' extra (t
 import torch
 
 from cmudrive.model import VLAProcessor, get_config, parse_partner
-from cmudrive.model.processor import IGNORE_INDEX, IMAGE_MEAN, IMAGE_STD
+from cmudrive.model.processor import IGNORE_INDEX, IMAGE_MEAN, IMAGE_STD, _normalise
 from tests.model_rows import make_row, rows
 
 
@@ -84,6 +84,17 @@ def test_camera_tiles_crop_the_bonnet_and_split_left_right(coop: VLAProcessor) -
     assert np.allclose(pixel[0, :, 4:-4, 4:-4].mean(axis=(1, 2)), [1, 0, 0], atol=0.02)
     assert np.allclose(pixel[1, :, 4:-4, 4:-4].mean(axis=(1, 2)), [0, 0, 1], atol=0.02)
     assert pixel[:, 1, 60:].max() < 0.05  # no white (green channel) from the cropped rows
+
+
+def test_every_level_of_every_channel_is_normalised_as_imagenet() -> None:
+    """Four 64 x 64 tiles whose rows hold the 256 uint8 levels: (level / 255 - mean) / std per channel,
+    channels first."""
+    level = np.arange(256, dtype=np.uint8).reshape(4, 64, 1, 1)
+    tiles = np.ascontiguousarray(np.broadcast_to(level, (4, 64, 64, 3)))  # (N, S, S, 3)
+    out = _normalise(tiles)
+    assert out.shape == (4, 3, 64, 64) and out.dtype == np.float32
+    expected = (tiles.astype(np.float32) / np.float32(255.0) - IMAGE_MEAN) / IMAGE_STD  # (N, S, S, 3)
+    assert np.allclose(out, expected.transpose(0, 3, 1, 2), rtol=0, atol=1e-6)
 
 
 def test_bev_is_padded_to_a_square_not_stretched(coop: VLAProcessor) -> None:

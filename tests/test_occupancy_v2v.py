@@ -249,6 +249,23 @@ def test_occupancy_image_colours_classes_and_the_ego():
     assert tuple(img[0, r[1], c[1]]) == (80, 255, 120)  # ego green
 
 
+def test_occupancy_image_draws_vehicles_over_people_over_static_and_leaves_the_rest_dark():
+    grid = np.zeros((2, 4, *CFG.shape), bool)
+    grid[0, OccupancyClass.STATIC, 10:20, 10:20] = True  # static alone, then each class stacked on it
+    grid[0, OccupancyClass.CYCLIST, 12:20, 10:20] = True
+    grid[0, OccupancyClass.PEDESTRIAN, 14:20, 10:20] = True
+    grid[0, OccupancyClass.VEHICLE, 16:20, 10:20] = True
+    img = occupancy_to_rgb(grid, ego=False)
+    assert [tuple(img[0, r, 15]) for r in (10, 12, 14, 16, 30)] == [
+        (150, 150, 150),  # static grey
+        (255, 200, 40),  # cyclist amber over static
+        (255, 80, 80),  # pedestrian red over both
+        (70, 140, 255),  # vehicle blue over everything
+        (20, 20, 24),  # background
+    ]
+    assert (img[1] == (20, 20, 24)).all()  # an empty grid is all background, no ego when ego=False
+
+
 def test_fused_warp_and_merge_equals_warp_then_or():
     rng = np.random.default_rng(4)
     own = rng.random((3, 4, *CFG.shape)) < 0.03

@@ -191,6 +191,52 @@ def positions(mask: torch.Tensor) -> torch.Tensor:
     return (mask.cumsum(-1) - 1).clamp(min=0)
 
 
+def query_states(lm: Any, embeds: torch.Tensor, mask: torch.Tensor, q: int) -> torch.Tensor:
+    """(B, Q, H): the language model's (a ``Qwen2Model``) final states at the last ``q`` positions of
+    ``embeds`` (B, L+Q, H), equal to ``lm(...).last_hidden_state[:, -q:]`` but with the last decoder
+    layer evaluated at those positions alone.
+
+    Only the queries' outputs are read when no text is decoded, and in the last layer nothing else
+    depends on the other positions' outputs: their keys and values are needed, their queries, attention
+    output and MLP are not. With ``tiny`` (2 layers, ~120 prompt positions and 30 queries per row) that
+    is ~30 % of the language model's time of a closed-loop tick (``benchmarks/closed_loop.py``). The
+    layers before the last run through ``lm`` itself (its masks, rotary embedding and attention
+    implementation); the last one is Qwen2's decoder layer written out with its own modules (norms,
+    projections, rotary embedding, MLP) and PyTorch's SDPA, which transformers' ``sdpa`` path
+    also calls. Tests check it against the full pass."""
+    from transformers.models.qwen2.modeling_qwen2 import repeat_kv, rotate_half
+
+    layers, norm = lm.layers, lm.norm
+    last = layers[-1]
+    attn = last.self_attn
+    if getattr(attn, "sliding_window", None) is not None:
+        raise ValueError("query_states does not handle sliding-window attention")
+    pos = positions(mask)
+    try:  # the layers before the last, as lm runs them; restored whatever happens
+        lm.layers, lm.norm = nn.ModuleList(list(layers)[:-1]), nn.Identity()
+        hidden = lm(inputs_embeds=embeds, attention_mask=mask, position_ids=pos, use_cache=False)
+    finally:
+        lm.layers, lm.norm = layers, norm
+    h = hidden.last_hidden_state  # (B, L+Q, H)
+    b, n, _ = h.shape
+    cos, sin = lm.rotary_emb(h, pos)
+    x = last.input_layernorm(h)
+    d = attn.head_dim
+    query = attn.q_proj(x[:, -q:]).view(b, q, -1, d).transpose(1, 2)  # (B, heads, Q, d)
+    key = attn.k_proj(x).view(b, n, -1, d).transpose(1, 2)  # (B, kv heads, L+Q, d)
+    value = attn.v_proj(x).view(b, n, -1, d).transpose(1, 2)
+    cos, sin = cos[:, None], sin[:, None]  # (B, 1, L+Q, d): as apply_rotary_pos_emb broadcasts them
+    query = query * cos[:, :, -q:] + rotate_half(query) * sin[:, :, -q:]
+    key = key * cos + rotate_half(key) * sin
+    key, value = repeat_kv(key, attn.num_key_value_groups), repeat_kv(value, attn.num_key_value_groups)
+    rows = torch.arange(n - q, n, device=mask.device)
+    allowed = (torch.arange(n, device=mask.device)[None, :] <= rows[:, None]) & mask.bool()[:, None, :]
+    out = F.scaled_dot_product_attention(query, key, value, attn_mask=allowed[:, None], scale=attn.scaling)
+    h = h[:, -q:] + attn.o_proj(out.transpose(1, 2).reshape(b, q, -1))
+    h = h + last.mlp(last.post_attention_layernorm(h))
+    return cast(torch.Tensor, norm(h))
+
+
 class V2VVLA(nn.Module):
     """V2V-VLA (``config.cooperative``) or the non-cooperative SimLingo-style baseline."""
 
@@ -305,7 +351,8 @@ class V2VVLA(nn.Module):
         """The waypoints of every row from one pass over prompt + queries (all CAVs of a tick in one
         batch), then greedy text on the same KV cache until ``</s>`` or ``max_new_tokens`` (default
         ``config.max_answer_tokens``). ``max_new_tokens=0``: waypoints only, no decoding (the closed loop's
-        ticks between two language ticks); the waypoints do not depend on it."""
+        ticks between two language ticks), the last layer at the queries alone (:func:`query_states`);
+        the waypoints do not depend on it."""
         was_training = self.training
         self.eval()
         try:
@@ -324,15 +371,12 @@ class V2VVLA(nn.Module):
         mask = torch.cat([batch.attention_mask, batch.attention_mask.new_ones(b, q)], dim=1)  # (B, L+Q)
         embeds = torch.cat([self.embed(batch), self.queries(b)], dim=1)  # (B, L+Q, H)
         lm = self.backbone.model.language_model
-        out = lm(
-            inputs_embeds=embeds,
-            attention_mask=mask,
-            position_ids=positions(mask),
-            use_cache=max_new_tokens > 0,
-        )
-        path, speed = self.waypoints(out.last_hidden_state[:, -q:])
         answer_ids: list[list[int]] = [[] for _ in range(b)]
-        if max_new_tokens > 0:
+        if max_new_tokens == 0:  # waypoints only: the last layer at the query positions alone
+            path, speed = self.waypoints(query_states(lm, embeds, mask, q))
+        else:
+            out = lm(inputs_embeds=embeds, attention_mask=mask, position_ids=positions(mask), use_cache=True)
+            path, speed = self.waypoints(out.last_hidden_state[:, -q:])
             answer, keep = self._greedy(out, mask, max_new_tokens)
             answer_ids = [row[k].tolist() for row, k in zip(answer.cpu(), keep.cpu(), strict=True)]
         text = [str(self.tokenizer.decode(a, skip_special_tokens=True)).strip() for a in answer_ids]
