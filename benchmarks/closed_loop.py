@@ -4,11 +4,12 @@ real time (20 ticks per second of simulated time).
 
     python benchmarks/closed_loop.py [--agent v2v-vla|v2v-vla-baseline|expert] [--checkpoint DIR]
                                      [--route InterurbanAdvancedActorFlow_0] [--ticks 400] [--threads 2]
+                                     [--language-every 5]
 
 Runs in this process, as a ``cmudrive eval`` worker does (the same environment: ``--threads`` intra-op
-threads, passive OpenMP waiting). The first ``--skip`` ticks (JIT warm-up, the first language tick) are
-left out. Prints the agent's and the simulator's median and mean milliseconds per tick, the real-time
-factor (simulated seconds per wall second) and, last, ``ticks_per_s=<value>``.
+threads, OpenMP threads that spin briefly then sleep). The first ``--skip`` ticks (JIT warm-up, the
+first language tick) are left out. Prints the agent's and the simulator's median and mean milliseconds
+per tick, the real-time factor (simulated seconds per wall second) and, last, ``ticks_per_s=<value>``.
 """
 
 from __future__ import annotations
@@ -29,10 +30,14 @@ def main() -> None:
     parser.add_argument("--ticks", type=int, default=400)
     parser.add_argument("--skip", type=int, default=20)
     parser.add_argument("--threads", type=int, default=os.cpu_count() or 1)
+    parser.add_argument(
+        "--language-every", type=int, default=None, help="V2V-VLA agents: ticks between language ticks"
+    )
     args = parser.parse_args()
     for name in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
         os.environ[name] = str(args.threads)
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # as cmudrive.bench.runner's workers
+    os.environ.setdefault("GOMP_SPINCOUNT", "200000")  # runner.OMP_SPIN_COUNT (not imported: set first)
 
     from cmudrive.agents.base import agent_factory, load_agent_class
     from cmudrive.bench.evaluator import EvalConfig, RouteHooks, evaluate_route
@@ -43,7 +48,9 @@ def main() -> None:
     if args.route not in specs:
         sys.exit(f"route {args.route!r} is not in cmudrive44")
     spec = specs[args.route]
-    options = {"checkpoint": args.checkpoint} if args.checkpoint else {}
+    options: dict[str, Any] = {"checkpoint": args.checkpoint} if args.checkpoint else {}
+    if args.language_every is not None:
+        options["language_every"] = args.language_every
     factory = agent_factory(load_agent_class(args.agent), options)
 
     spent = {"agent": [0.0] * (args.ticks + 1), "sim": [0.0] * (args.ticks + 1)}
@@ -69,7 +76,10 @@ def main() -> None:
     sim = [s * 1e3 for s in spent["sim"][args.skip : n]]
     total = [a + s for a, s in zip(agent, sim, strict=True)]
     mean = statistics.mean(total)
-    print(f"{args.agent} on {spec.id} ({len(spec.cavs)} CAVs), ticks {args.skip}-{n}, {args.threads} threads")
+    print(
+        f"{args.agent} on {spec.id} ({len(spec.cavs)} CAVs), ticks {args.skip}-{n}, {args.threads} threads"
+        + (f", language every {args.language_every} ticks" if args.language_every else "")
+    )
     for name, values in (("agent", agent), ("simulator", sim)):
         median, average = statistics.median(values), statistics.mean(values)
         print(f"  {name:<10} median {median:6.1f} ms, mean {average:6.1f} ms per tick")

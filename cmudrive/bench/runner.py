@@ -60,6 +60,8 @@ ROUTES_DIR = "routes"
 PROGRESS_EVERY = 20  # ticks between progress messages (and partial scores) from a worker
 WATCHDOG_GRACE = 5.0  # [s] added to the agent's time limits before its worker is killed
 SIM_SILENCE = 300.0  # [s] our own code silent this long (no tick, no phase change) counts as hung
+OMP_SPIN_COUNT = 200_000  # spins of an idle libgomp thread before it sleeps (~0.1-1 ms; libgomp's own
+# default is 300,000 when no wait policy is set, and without end under OMP_WAIT_POLICY=ACTIVE)
 PHASES = ("sim", "setup", "agent")  # what a worker is running, as stored in its shared phase slot
 
 
@@ -266,12 +268,16 @@ def _worker(task: RouteTask, messages: Any, beat: Any, threads: int = 1) -> None
     JSON-ready data), and keep ``beat`` (the phase and since when) current for the parent's watchdog.
     ``threads``: this worker's share of the cores, the intra-op thread count of an agent's torch/BLAS
     (set before anything imports them; a value the user exported wins), so that N workers do not each
-    start a thread per core. OpenMP threads wait passively: the camera's numba kernels and torch each
-    bring an OpenMP runtime, and their spinning idle threads starved each other (a V2V-VLA tick with 16
-    CAVs took 300 ms instead of 80 ms)."""
+    start a thread per core. Idle OpenMP threads spin only briefly, then sleep: the camera's numba
+    kernels and torch each bring an OpenMP runtime, and threads spinning without end starved each other
+    (a V2V-VLA tick with 16 CAVs took 300 ms instead of 80 ms), while threads that sleep at once pay a
+    wake-up per parallel region, hundreds per forward pass of a small model: with ``GOMP_SPINCOUNT``
+    (libgomp, torch's and numba's runtime on Linux; it takes precedence over the wait policy) at
+    OMP_SPIN_COUNT a 16-CAV tick takes 45.9 ms instead of 62.1 ms (``benchmarks/closed_loop.py``)."""
     for name in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
         os.environ.setdefault(name, str(threads))
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # other OpenMP runtimes: sleep at once
+    os.environ.setdefault("GOMP_SPINCOUNT", str(OMP_SPIN_COUNT))
     if task.max_memory is not None:
         limit = int(task.max_memory * 2**30)
         resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
