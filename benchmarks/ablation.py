@@ -84,8 +84,8 @@ def main() -> None:
     parser.add_argument("--data", required=True)
     parser.add_argument("--rows", type=int, default=2000)
     parser.add_argument("--threads", type=int, default=2)
-    parser.add_argument("--coop", default="cmudrive/assets/models/v2v-vla-tiny")
-    parser.add_argument("--baseline", default="cmudrive/assets/models/v2v-vla-baseline-tiny")
+    parser.add_argument("--coop", default="cmudrive/assets/models/v2v-vla-tiny-no-speed")
+    parser.add_argument("--baseline", default="cmudrive/assets/models/v2v-vla-baseline-tiny-no-speed")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     val, rows, seen = held_out_rows(args.data, args.rows, extra=("occupancy",))  # own grid for the ablation

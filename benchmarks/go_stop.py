@@ -59,8 +59,8 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     checkpoints = args.checkpoint or [
-        "cmudrive/assets/models/v2v-vla-tiny",
-        "cmudrive/assets/models/v2v-vla-baseline-tiny",
+        "cmudrive/assets/models/v2v-vla-tiny-no-speed",
+        "cmudrive/assets/models/v2v-vla-baseline-tiny-no-speed",
     ]
     _, rows, _ = held_out_rows(args.data, args.rows)
     speed = np.array([float(r["speed"]) for r in rows])

@@ -447,7 +447,7 @@ def evaluate(
         Path | None,
         typer.Option(
             help="model checkpoint directory, passed to the agent's constructor as checkpoint=PATH "
-            "(v2v-vla: default the committed cmudrive/assets/models/v2v-vla-tiny)"
+            "(v2v-vla: default the committed cmudrive/assets/models/v2v-vla-tiny-no-speed)"
         ),
     ] = None,
     agent_option: Annotated[

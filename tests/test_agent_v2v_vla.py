@@ -125,20 +125,26 @@ def test_a_missing_checkpoint_names_the_path(tmp_path: Path, monkeypatch: pytest
         V2VVLAAgent(checkpoint=tmp_path)
 
 
-@pytest.mark.parametrize("cooperative", [True, False])
-def test_the_committed_checkpoints_load_and_are_small(cooperative: bool) -> None:
-    path = resolve_checkpoint(None, cooperative)
-    assert path.name == ("v2v-vla-tiny" if cooperative else "v2v-vla-baseline-tiny")
+@pytest.mark.parametrize(
+    "name",
+    ["v2v-vla-tiny-no-speed", "v2v-vla-baseline-tiny-no-speed", "v2v-vla-tiny", "v2v-vla-baseline-tiny"],
+)
+def test_the_committed_checkpoints_load_and_are_small(name: str) -> None:
+    """The defaults (no speed in the prompt) and the first pair (speed in the prompt, the README's
+    ablation)."""
+    path = v2v_vla.MODELS / name
     assert (path / "model.safetensors").stat().st_size < 20e6  # the issue's limit for committed weights
     model = V2VVLA.from_pretrained(path)
-    assert model.config.name == "tiny" and model.config.cooperative is cooperative
+    assert model.config.name == "tiny" and model.config.cooperative is ("baseline" not in name)
+    assert model.config.speed_in_prompt is ("no-speed" not in name)
+    if "no-speed" in name:
+        assert resolve_checkpoint(None, "baseline" not in name) == path
 
 
 @pytest.mark.parametrize("cooperative", [True, False])
 def test_the_committed_no_speed_checkpoints_never_read_the_speed(cooperative: bool) -> None:
-    """The ``--no-speed-input`` pair of the README's experiment: same waypoints at 0 and at 8 m/s."""
-    name = "v2v-vla-tiny-no-speed" if cooperative else "v2v-vla-baseline-tiny-no-speed"
-    path = v2v_vla.MODELS / name
+    """The defaults, trained with ``--no-speed-input``: same waypoints at 0 and at 8 m/s."""
+    path = resolve_checkpoint(None, cooperative)
     assert (path / "model.safetensors").stat().st_size < 20e6
     model = V2VVLA.from_pretrained(path).eval()
     assert model.config.cooperative is cooperative and not model.config.speed_in_prompt
@@ -324,26 +330,40 @@ def test_ablations_ignore_partner_requests_or_feed_the_own_occupancy(checkpoints
         V2VVLAAgent(checkpoint=checkpoints["coop"], bev="none")
 
 
-@pytest.mark.parametrize("agent", [V2VVLAAgent, V2VVLABaselineAgent])
-def test_the_committed_models_keep_a_rolling_cav_on_its_straight_road(
-    agent: type[V2VVLAAgent], straight: RouteSpec
+@pytest.mark.parametrize(
+    ("agent", "checkpoint", "speed", "reach"),
+    [
+        (V2VVLAAgent, None, 0.0, (6.0, 25.0)),  # the defaults: no speed in the prompt, they drive off
+        (V2VVLABaselineAgent, None, 0.0, (6.0, 25.0)),
+        (V2VVLAAgent, "v2v-vla-tiny", 5.0, (6.0, 20.0)),  # the speed-fed pair, told they roll
+        (V2VVLABaselineAgent, "v2v-vla-baseline-tiny", 5.0, (6.0, 20.0)),
+    ],
+)
+def test_the_committed_models_drive_along_an_empty_straight_road(
+    agent: type[V2VVLAAgent],
+    checkpoint: str | None,
+    speed: float,
+    reach: tuple[float, float],
+    straight: RouteSpec,
 ) -> None:
-    """The trained checkpoints, not random weights: on the empty straight road, told they roll at 5 m/s,
-    they forecast driving on (6-20 m in 2.5 s) along the lane (path within 1.5 m of straight ahead).
-    (Told 0 m/s they forecast standing, the inertia problem that docs/model.md describes.)"""
+    """The trained checkpoints, not random weights: on the empty straight road they forecast driving on
+    (``reach`` metres in 2.5 s) along the lane (path within 1.5 m of straight ahead). The defaults, which
+    never see their speed, do so from the standing start; the speed-fed pair when told it rolls at 5 m/s
+    (told 0 m/s it forecasts standing, the inertia problem that docs/model.md describes)."""
     seen: list[Any] = []
 
     class Probe(agent):  # type: ignore[valid-type,misc]
         def run_step(self, obs: Observations) -> Controls:
             if obs.tick == 5:
-                rows = [{**r, "speed": 5.0} for r in self.rows(obs)]
+                rows = [{**r, "speed": speed} for r in self.rows(obs)]
                 seen.append(self.model.predict(rows, max_new_tokens=0))
             return super().run_step(obs)
 
+    options = {} if checkpoint is None else {"checkpoint": str(v2v_vla.MODELS / checkpoint)}
     config = EvalConfig(tick_cap=6, background=BackgroundConfig(vehicles=0, pedestrians=0))
-    result = evaluate_route(straight, Probe, config)
+    result = evaluate_route(straight, agent_factory(Probe, options), config)
     assert result.status not in (STATUS_AGENT_CRASHED, STATUS_SIM_CRASHED), result.error
     pred = seen[0]
     ahead = pred.speed_waypoints[:, -1].norm(dim=-1)
-    assert ((ahead > 6.0) & (ahead < 20.0)).all(), ahead
+    assert ((ahead > reach[0]) & (ahead < reach[1])).all(), ahead
     assert pred.path[:, :10, 1].abs().max() < 1.5 and (pred.path[:, 9, 0] > 5.0).all()

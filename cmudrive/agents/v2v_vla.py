@@ -19,7 +19,9 @@ Per tick, for the ``n`` active CAVs:
 
 The checkpoint: ``V2VVLAAgent(checkpoint=PATH)`` (``cmudrive eval --agent v2v-vla --checkpoint PATH``
 passes it through ``EvalConfig.agent_options``), else the committed one under
-``cmudrive/assets/models/v2v-vla-tiny/`` (``v2v-vla-baseline-tiny/`` for :class:`V2VVLABaselineAgent`).
+``cmudrive/assets/models/v2v-vla-tiny-no-speed/`` (``v2v-vla-baseline-tiny-no-speed/`` for
+:class:`V2VVLABaselineAgent`): the pair trained without the speed in the prompt, which drives better in
+closed loop than the pair that reads it (``v2v-vla-tiny/``, ``v2v-vla-baseline-tiny/``; README).
 """
 
 from __future__ import annotations
@@ -36,8 +38,8 @@ from cmudrive.sensors.occupancy import occupancy_to_rgb
 from cmudrive.sim.dynamics import Controls
 
 MODELS = Path(__file__).resolve().parents[1] / "assets" / "models"
-DEFAULT_CHECKPOINT = MODELS / "v2v-vla-tiny"
-DEFAULT_BASELINE_CHECKPOINT = MODELS / "v2v-vla-baseline-tiny"
+DEFAULT_CHECKPOINT = MODELS / "v2v-vla-tiny-no-speed"
+DEFAULT_BASELINE_CHECKPOINT = MODELS / "v2v-vla-baseline-tiny-no-speed"
 LANGUAGE_EVERY = 5  # [ticks] generate language at 4 Hz (the dataset's sample rate)
 TARGET_MIN_AHEAD = 7.5  # [m] a target point closer than this along the route counts as reached (as the data)
 TARGET_SEARCH = 3  # [segments] of the sparse plan searched ahead of the last one for the CAV's progress
