@@ -286,3 +286,61 @@ def test_cli_agent_options_reach_the_constructor_check(tmp_path: Path) -> None:
     result = runner.invoke(app, ["eval", *out, "--agent-option", "wheels=4"])
     assert result.exit_code != 0 and "wheels" in result.output
     assert not (tmp_path / "o" / "results.json").exists()
+
+
+class SleepsAtTick1(PidAgent):
+    """Sleeps two minutes in its second step: the route is still running when the test stops the run."""
+
+    def run_step(self, obs: Observations) -> Controls:
+        if obs.tick == 1:
+            time.sleep(120.0)
+        return super().run_step(obs)
+
+
+def _children(pid: int) -> set[int]:
+    kids: set[int] = set()
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        text = (task / "children").read_text() if (task / "children").exists() else ""
+        kids.update(int(k) for k in text.split())
+    return kids
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="reads child processes from /proc (Linux)")
+def test_sigterm_to_an_evaluation_stops_its_workers_too(tmp_path: Path) -> None:
+    """`kill PID` (a scheduler's stop) of `cmudrive eval` ends its route workers as well, instead of
+    leaving them running on their own."""
+    import subprocess
+    import sys
+
+    routes = tmp_path / "ring.xml"
+    write_routes([ring_route()], routes)
+    root = Path(__file__).resolve().parents[1]
+    command = [sys.executable, "-c", "from cmudrive.cli import app; app()", "eval", "--routes", str(routes),
+               "--agent", f"{__name__}:SleepsAtTick1", "--out", str(tmp_path / "out"), "--workers", "1",
+               "--step-timeout", "300"]  # fmt: skip
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")])}
+    quiet = subprocess.DEVNULL
+    parent = subprocess.Popen(command, cwd=root, env=env, stdout=quiet, stderr=quiet)
+    try:
+        deadline = time.monotonic() + 120.0
+        workers: set[int] = set()
+        while not workers and time.monotonic() < deadline and parent.poll() is None:
+            time.sleep(0.5)
+            workers = {k for k in _children(parent.pid) if "spawn" in Path(f"/proc/{k}/cmdline").read_text()}
+        assert workers, "no route worker started"
+        time.sleep(5.0)  # the worker is into its route
+        parent.send_signal(signal.SIGTERM)
+        assert parent.wait(timeout=30.0) == 128 + signal.SIGTERM
+        time.sleep(1.0)
+        alive = {w for w in workers if Path(f"/proc/{w}").exists() and "Z" not in _state(w)}
+        assert not alive, f"workers left running: {alive}"
+    finally:
+        if parent.poll() is None:
+            parent.kill()
+
+
+def _state(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return "gone"

@@ -14,11 +14,11 @@ Every route runs in a fresh worker process (libsumo holds one simulation per pro
 SUMO or of the agent's native code must not take the run down); the route loop does not know which
 executor runs it. ``resume`` skips routes whose record exists and did not crash, and runs the others
 again; a new run into a folder that already holds records is refused (resume it, or use another
-folder), and results only ever merge the records of the routes of this run's file. Ctrl-C stops the
-run; what finished is on disk.
+folder), and results only ever merge the records of the routes of this run's file. Ctrl-C or SIGTERM
+(``kill``, a job scheduler) stops the run and its workers; what finished is on disk.
 
 **The local executor's watchdog.** A worker tells the parent, through shared memory, which phase it is
-in (``setup``: the agent's constructor and ``setup``; ``agent``: ``run_step``; ``sim``: our code) and
+in (``setup``: the agent's constructor and ``setup``; ``agent``: ``run_step``; ``sim``: the simulator) and
 since when, and sends its route's scores every second of simulated time. A worker silent in one phase
 for longer than that phase allows (``setup_timeout`` / ``step_timeout`` + ``WATCHDOG_GRACE``, or
 ``SIM_SILENCE`` in our code) is killed, which stops an agent stuck in native code that no in-process
@@ -33,7 +33,9 @@ import json
 import os
 import queue
 import resource
+import signal
 import tempfile
+import threading
 import time
 import traceback
 from collections import Counter
@@ -168,6 +170,7 @@ class LocalExecutor:
         waiting = list(reversed(tasks))
         running: dict[str, _Running] = {}
         delivered: set[str] = set()
+        restore = _exit_on_sigterm()
         try:
             while waiting or running:
                 while waiting and len(running) < self.workers:
@@ -197,6 +200,7 @@ class LocalExecutor:
         finally:
             for job in running.values():
                 job.proc.kill()
+            restore()
 
     @staticmethod
     def _handle(
@@ -217,6 +221,25 @@ class LocalExecutor:
         elif route_id not in delivered:
             delivered.add(route_id)
             yield RouteResult.from_json(payload)
+
+
+def _exit_on_sigterm() -> Callable[[], None]:
+    """Until the returned function is called, SIGTERM (a job scheduler's or ``kill``'s stop) exits this
+    process through Python (``SystemExit(143)``), so that the executor's cleanup kills its workers: the
+    signal's default action ends the process at once and leaves them running (daemon workers are only
+    ended on a normal exit). Only the main thread may set a handler; elsewhere nothing changes."""
+    if threading.current_thread() is not threading.main_thread():
+        return lambda: None
+
+    def stop(signum: int, frame: object) -> None:
+        raise SystemExit(128 + signum)
+
+    previous = signal.signal(signal.SIGTERM, stop)
+
+    def restore() -> None:
+        signal.signal(signal.SIGTERM, previous)
+
+    return restore
 
 
 @dataclass
