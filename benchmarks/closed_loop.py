@@ -37,7 +37,9 @@ def main() -> None:
     for name in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
         os.environ[name] = str(args.threads)
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # as cmudrive.bench.runner's workers
-    os.environ.setdefault("GOMP_SPINCOUNT", "200000")  # runner.OMP_SPIN_COUNT (not imported: set first)
+    from cmudrive.bench.runner import OMP_SPIN_COUNT  # loads no OpenMP runtime yet: the setting applies
+
+    os.environ.setdefault("GOMP_SPINCOUNT", str(OMP_SPIN_COUNT))
 
     from cmudrive.agents.base import agent_factory, load_agent_class
     from cmudrive.bench.evaluator import EvalConfig, RouteHooks, evaluate_route

@@ -303,7 +303,7 @@ def test_snapshot_columns_follow_actors_that_come_and_go(mini_net: Path, mini: R
 
 
 def test_cav_off_the_road_leaves_sumo_and_comes_back_on_it(mini_net: Path, mini: RoadMap) -> None:
-    """A CAV that turns off road C-E (30 m into the open) is out of SUMO, lane -1, while it is there
+    """A CAV that turns off road C-E (more than 15 m into the open) is out of SUMO, lane -1, while it is there
     (SUMO could only put it on the nearest lane, where it is not); set back on its lane it is in SUMO
     again and a SUMO car coming up behind it stops 1-8 m short of it."""
     import libsumo

@@ -156,6 +156,7 @@ class World:
         self._cav_brake = np.zeros(0)
         self._cav_off_road = np.zeros(0, bool)  # no driving lane within MATCH_RADIUS at the last push
         self._cav_in_sumo: set[str] = set()
+        self._cav_left_sumo: set[int] = set()  # CAVs taken out of SUMO because they were off the road
         self._cav_edges: dict[str, list[str]] = {}
         self.layer = LayerActors()
         self.collisions: CollisionEvents = detect_collisions(self._empty_snapshot())
@@ -210,6 +211,7 @@ class World:
             return
         self.cav_active[index] = False
         cav_id = self.cav_ids[index]
+        self._cav_left_sumo.discard(index)
         if cav_id in self._cav_in_sumo:
             remove_from_sumo(cav_id)
             self._cav_in_sumo.discard(cav_id)
@@ -257,7 +259,7 @@ class World:
         stood 6 m off its lane for minutes on a Town03 shoulder; the same SUMO state with the CAV
         removed and added again ran on; docs/simulator.md). Our collision check sees the CAV wherever
         it is, so SUMO traffic that hits it off the road is still a collision."""
-        if not self._cav_in_sumo.issuperset([self.cav_ids[i] for i in rows.tolist()]):
+        if self._cav_left_sumo:  # rare: nothing to look at in the common tick
             rows = self._return_to_sumo(rows)
         st = self.cav_state
         pick: slice | np.ndarray
@@ -272,11 +274,12 @@ class World:
         for k in np.flatnonzero(off_road).tolist():
             remove_from_sumo(ids[k])
             self._cav_in_sumo.discard(ids[k])
+            self._cav_left_sumo.add(k if isinstance(pick, slice) else int(rows[k]))
 
     def _return_to_sumo(self, rows: np.ndarray) -> np.ndarray:
         """Re-insert the CAVs at ``rows`` that are out of SUMO and back near a driving lane; returns the
         rows still to push (in SUMO, not just inserted: an insertion pushes its CAV)."""
-        out = np.array([self.cav_ids[i] not in self._cav_in_sumo for i in rows.tolist()], bool)
+        out = np.isin(rows, list(self._cav_left_sumo))
         st = self.cav_state
         back = (
             self.map.index.nearest_lane(
@@ -285,6 +288,7 @@ class World:
             >= 0
         )
         for i in rows[out][back].tolist():
+            self._cav_left_sumo.discard(i)
             self._insert_cav(i)
         return rows[~out]
 
