@@ -30,6 +30,7 @@ from cmudrive.agents.base import (
     check_observations,
     sparse_plan,
 )
+from cmudrive.bench.compile_clock import CompileClock
 from cmudrive.bench.criteria import CriteriaConfig, RouteCriteria
 from cmudrive.bench.metrics import comfort_score, route_result
 from cmudrive.bench.observe import ObservationBuilder, SensorConfig
@@ -103,8 +104,10 @@ class RouteHooks:
     phase: Callable[[str], None] | None = None
     partial: Callable[[RouteResult], None] | None = None
     partial_every: int = 20  # [ticks]
+    current: str = field(default="sim", init=False)  # the phase entered last
 
     def enter(self, name: str) -> None:
+        self.current = name
         if self.phase is not None:
             self.phase(name)
 
@@ -116,11 +119,19 @@ def evaluate_route(
     on_tick: Callable[[int], None] | None = None,
     hooks: RouteHooks | None = None,
 ) -> RouteResult:
-    """Run one route to the end and score it (see the module docstring for what is raised)."""
+    """Run one route to the end and score it (see the module docstring for what is raised). Time that
+    numba spends compiling or loading kernels is not charged to the agent (``compile_clock``)."""
     config = config or EvalConfig()
     hooks = hooks or RouteHooks()
     if on_tick is not None:
         hooks = replace(hooks, tick=on_tick)
+    with CompileClock(hooks.enter, lambda: hooks.current):
+        return _run_route(spec, make_agent, config, hooks)
+
+
+def _run_route(
+    spec: RouteSpec, make_agent: Callable[[], Agent], config: EvalConfig, hooks: RouteHooks
+) -> RouteResult:
     started = time.perf_counter()
     try:
         town_path = spec.town_path()

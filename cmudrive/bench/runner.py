@@ -18,13 +18,13 @@ folder), and results only ever merge the records of the routes of this run's fil
 (``kill``, a job scheduler) stops the run and its workers; what finished is on disk.
 
 **The local executor's watchdog.** A worker tells the parent, through shared memory, which phase it is
-in (``setup``: the agent's constructor and ``setup``; ``agent``: ``run_step``; ``sim``: the simulator) and
-since when, and sends its route's scores every second of simulated time. A worker silent in one phase
-for longer than that phase allows (``setup_timeout`` / ``step_timeout`` + ``WATCHDOG_GRACE``, or
-``SIM_SILENCE`` in our code) is killed, which stops an agent stuck in native code that no in-process
-timeout can interrupt. A killed or dead worker's route is recorded with the last scores it sent,
-"Failed - Agent crashed" when the agent's code was running (hung, ``os._exit``, a segfault in the
-agent's extension), "Failed - Simulation crashed" otherwise.
+in (``setup``: the agent's constructor and ``setup``; ``agent``: ``run_step``; ``sim``: the simulator;
+``compile``: numba compiles or loads a kernel, whoever called it, see ``compile_clock``) and since when, and
+sends its route's scores every second of simulated time. A worker silent in one phase for longer than that
+phase allows (``setup_timeout`` / ``step_timeout`` + ``WATCHDOG_GRACE``, or ``SIM_SILENCE`` in our code) is
+killed, which stops an agent stuck in native code that no in-process timeout can interrupt. A killed or dead
+worker's route is recorded with the last scores it sent, "Failed - Agent crashed" when the agent's code was
+running (hung, ``os._exit``, a segfault in the agent's extension), "Failed - Simulation crashed" otherwise.
 """
 
 from __future__ import annotations
@@ -46,6 +46,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from cmudrive.agents.base import Agent, AgentSetupError, agent_factory, load_agent_class
+from cmudrive.bench.compile_clock import COMPILE_PHASE
 from cmudrive.bench.evaluator import AgentCrash, EvalConfig, RouteHooks, evaluate_route
 from cmudrive.bench.metrics import route_result, route_status, summarize
 from cmudrive.bench.records import (
@@ -64,7 +65,8 @@ WATCHDOG_GRACE = 5.0  # [s] added to the agent's time limits before its worker i
 SIM_SILENCE = 300.0  # [s] our own code silent this long (no tick, no phase change) counts as hung
 OMP_SPIN_COUNT = 200_000  # spins of an idle libgomp thread before it sleeps (~0.1-1 ms; libgomp's own
 # default is 300,000 when no wait policy is set, and without end under OMP_WAIT_POLICY=ACTIVE)
-PHASES = ("sim", "setup", "agent")  # what a worker is running, as stored in its shared phase slot
+# what a worker is running, as stored in its shared phase slot; "compile": numba compiles or loads a kernel
+PHASES = ("sim", "setup", "agent", COMPILE_PHASE)
 
 
 class OutputFolderError(ValueError):
@@ -257,13 +259,18 @@ class _Running:
     def hung(self) -> str | None:
         """Why the worker counts as hung now, or None."""
         cfg = self.task.config
-        limit = {"sim": SIM_SILENCE, "setup": cfg.setup_timeout + WATCHDOG_GRACE}.get(
-            self.phase(), cfg.step_timeout + WATCHDOG_GRACE
+        limit = {"setup": cfg.setup_timeout + WATCHDOG_GRACE, "agent": cfg.step_timeout + WATCHDOG_GRACE}.get(
+            self.phase(), SIM_SILENCE
         )
         silent = time.monotonic() - self.beat[0]
         if silent <= limit:
             return None
-        what = {"sim": "the simulation", "setup": "the agent's setup", "agent": "run_step"}[self.phase()]
+        what = {
+            "sim": "the simulation",
+            "setup": "the agent's setup",
+            "agent": "run_step",
+            COMPILE_PHASE: "numba's compiler",
+        }[self.phase()]
         return f"{what} made no progress for {silent:.0f} s (limit {limit:.0f} s): worker killed"
 
     def lost(self, verdict: str | None) -> RouteResult:
@@ -271,7 +278,10 @@ class _Running:
         agent_fault = self.phase() in ("setup", "agent")
         status = STATUS_AGENT_CRASHED if agent_fault else STATUS_SIM_CRASHED
         why = verdict or f"worker process died (exit code {self.proc.exitcode})"
-        where = "the agent" if agent_fault else "the simulator (libsumo's step or our world and criteria)"
+        where = {
+            "sim": "the simulator (libsumo's step or our world and criteria)",
+            COMPILE_PHASE: "numba compiled or loaded a kernel (our code)",
+        }.get(self.phase(), "the agent")
         message = f"route {self.task.spec.id}: {why} while {where} ran"
         if self.partial is None:
             record = crashed_record(self.task.spec, RuntimeError(message))
