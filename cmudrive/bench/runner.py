@@ -64,7 +64,7 @@ WATCHDOG_GRACE = 5.0  # [s] added to the agent's time limits before its worker i
 SIM_SILENCE = 300.0  # [s] our own code silent this long (no tick, no phase change) counts as hung
 OMP_SPIN_COUNT = 200_000  # spins of an idle libgomp thread before it sleeps (~0.1-1 ms; libgomp's own
 # default is 300,000 when no wait policy is set, and without end under OMP_WAIT_POLICY=ACTIVE)
-PHASES = ("sim", "setup", "agent")  # what a worker is running, as stored in its shared phase slot
+PHASES = ("sim", "setup", "agent", "cleanup")  # what a worker runs, as stored in its shared phase slot
 
 
 class OutputFolderError(ValueError):
@@ -258,21 +258,33 @@ class _Running:
         """Why the worker counts as hung now, or None."""
         cfg = self.task.config
         limit = {"sim": SIM_SILENCE, "setup": cfg.setup_timeout + WATCHDOG_GRACE}.get(
-            self.phase(), cfg.step_timeout + WATCHDOG_GRACE
+            self.phase(),
+            cfg.step_timeout + WATCHDOG_GRACE,  # run_step and destroy
         )
         silent = time.monotonic() - self.beat[0]
         if silent <= limit:
             return None
-        what = {"sim": "the simulation", "setup": "the agent's setup", "agent": "run_step"}[self.phase()]
+        what = {
+            "sim": "the simulation",
+            "setup": "the agent's setup",
+            "agent": "run_step",
+            "cleanup": "the agent's destroy()",
+        }[self.phase()]
         return f"{what} made no progress for {silent:.0f} s (limit {limit:.0f} s): worker killed"
 
     def lost(self, verdict: str | None) -> RouteResult:
-        """The record of a route whose worker died (``verdict`` None) or was killed as hung."""
-        agent_fault = self.phase() in ("setup", "agent")
+        """The record of a route whose worker died (``verdict`` None) or was killed as hung. In the
+        agent's ``destroy()`` the last scores sent are the route's final record: it stands, the problem
+        in ``cleanup_error``."""
+        agent_fault = self.phase() in ("setup", "agent", "cleanup")
         status = STATUS_AGENT_CRASHED if agent_fault else STATUS_SIM_CRASHED
         why = verdict or f"worker process died (exit code {self.proc.exitcode})"
         where = "the agent" if agent_fault else "the simulator (libsumo's step or our world and criteria)"
         message = f"route {self.task.spec.id}: {why} while {where} ran"
+        if self.phase() == "cleanup" and self.partial is not None:
+            record = RouteResult.from_json(self.partial)
+            record.cleanup_error = message
+            return record
         if self.partial is None:
             record = crashed_record(self.task.spec, RuntimeError(message))
             record.status = status

@@ -1,0 +1,205 @@
+"""Faults blamed on whoever caused them (issue 22, defect 4): what the agent hands over is checked at the
+boundary, its clean-up is timed and cannot undo a finished route, its constructor's own exit is its crash."""
+
+from __future__ import annotations
+
+import re
+import signal
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import ClassVar
+
+import numpy as np
+import pytest
+
+from cmudrive.agents import Agent, Observations, PidAgent
+from cmudrive.agents.base import AgentSetupError
+from cmudrive.bench import EvalConfig, LocalExecutor, evaluate_route, run_evaluation
+from cmudrive.bench.evaluator import AgentCrash
+from cmudrive.bench.records import (
+    STATUS_AGENT_CRASHED,
+    STATUS_TICK_CAP,
+)
+from cmudrive.bench.routes import ScenarioSpec
+from cmudrive.bench.runner import RouteTask, run_task
+from cmudrive.maps import load_map
+from cmudrive.maps.coords import map_to_carla
+from cmudrive.sim.background import BackgroundConfig
+from cmudrive.sim.dynamics import Controls
+
+from .test_evaluator import ring_route
+
+EMPTY = BackgroundConfig(vehicles=0, pedestrians=0)
+QUICK = EvalConfig(background=EMPTY, tick_cap=60, step_timeout=1.0)
+LANE = "R1a-R2a_0"  # CAV 0's lane on the ring route (tests/test_evaluator.py)
+
+
+def _lane_xy(s: float, offset: float = 0.0) -> np.ndarray:
+    """Map-frame point at arc length s [m] of CAV 0's lane, ``offset`` metres to its left."""
+    m = load_map("interurban")
+    i = m.lane(LANE)
+    xy = m.index.frenet_to_xy(np.array([i, i]), np.array([s, s + 1.0]))
+    along = (xy[1] - xy[0]) / np.linalg.norm(xy[1] - xy[0])
+    return xy[0] + offset * np.array([-along[1], along[0]])
+
+
+def _trigger(s: float, offset: float = 0.0) -> tuple[float, float, float, float]:
+    c = map_to_carla(_lane_xy(s, offset)[None])[0]
+    return (float(c[0]), float(c[1]), 0.0, 0.0)
+
+
+# ---- defect 4: what the agent hands over ---------------------------------------------------------
+
+
+class StringThrottle(PidAgent):
+    def run_step(self, obs: Observations) -> Controls:
+        c = super().run_step(obs)
+        if obs.tick == 3:
+            return Controls(c.steer, np.array(["full"] * len(c.throttle)), c.brake)
+        return c
+
+
+class NumericStringSteer(PidAgent):
+    """Strings that parse as numbers are still not numbers: they used to pass silently."""
+
+    def run_step(self, obs: Observations) -> Controls:
+        c = super().run_step(obs)
+        if obs.tick == 4:
+            return Controls(np.array(["0.1"] * len(c.steer)), c.throttle, c.brake)
+        return c
+
+
+class InfiniteBrakeOnCav1(PidAgent):
+    def run_step(self, obs: Observations) -> Controls:
+        c = super().run_step(obs)
+        if obs.tick == 2:
+            brake = np.array(c.brake, np.float64)
+            brake[1] = np.inf
+            return Controls(c.steer, c.throttle, brake)
+        return c
+
+
+@pytest.mark.parametrize(
+    ("agent", "match"),
+    [
+        (StringThrottle, r"at tick 3: throttle is .*full.* controls must be numbers \(CAVs cav0, cav1\)"),
+        (NumericStringSteer, r"at tick 4: steer is .*0\.1.* controls must be numbers"),
+        (InfiniteBrakeOnCav1, r"at tick 2: CAV cav1: brake is inf"),
+    ],
+)
+def test_unusable_controls_are_the_agents_crash_naming_control_tick_and_cav(
+    agent: type[Agent], match: str
+) -> None:
+    result = evaluate_route(ring_route(), agent, QUICK)
+    assert result.status == STATUS_AGENT_CRASHED, result.error
+    assert all(c.status == STATUS_AGENT_CRASHED for c in result.cavs)
+    last = (result.error or "").strip().splitlines()[-1]
+    assert "AgentCrash: run_step returned unusable controls" in last
+    assert re.search(match, last), last
+
+
+class WrongShapeInControlLossPatch(PidAgent):
+    """Two CAVs, three throttle values once CAV 0 is in a ControlLoss patch: before the boundary check it
+    only failed inside the scenario's perturbation, as a simulation crash."""
+
+    patch: ClassVar[np.ndarray] = np.zeros(2)
+
+    def run_step(self, obs: Observations) -> Controls:
+        c = super().run_step(obs)
+        cav0 = np.flatnonzero(obs.cav_index == 0)
+        if len(cav0) and np.hypot(obs.x[cav0[0]] - self.patch[0], obs.y[cav0[0]] - self.patch[1]) < 1.0:
+            return Controls(c.steer, np.append(c.throttle, 0.5), c.brake)
+        return c
+
+
+def test_a_wrong_shaped_throttle_under_control_loss_is_the_agents_crash() -> None:
+    WrongShapeInControlLossPatch.patch = _lane_xy(54.0)  # the first patch: T (s = 40 m) + 14 m
+    spec = replace(ring_route(), scenarios=(ScenarioSpec("S1", "ControlLoss", _trigger(40.0)),))
+    result = evaluate_route(spec, WrongShapeInControlLossPatch, replace(QUICK, tick_cap=400))
+    assert result.status == STATUS_AGENT_CRASHED, result.error
+    assert "throttle has shape (3,), expected (2,)" in (result.error or "")
+
+
+class UnknownObservation(PidAgent):
+    observations = frozenset({"lidar"})  # type: ignore[arg-type]  # the point of this agent
+
+
+class ObservationsAsString(PidAgent):
+    observations = "camera"  # type: ignore[assignment]  # the point of this agent
+
+
+@pytest.mark.parametrize(
+    ("agent", "match"), [(UnknownObservation, "'lidar'"), (ObservationsAsString, "'camera'")]
+)
+def test_an_invalid_observations_declaration_is_the_agents_fault(
+    agent: type[Agent], match: str, tmp_path: Path
+) -> None:
+    with pytest.raises(AgentSetupError, match=f"{agent.__name__}: observations.*{match}"):
+        run_evaluation([ring_route()], f"{__name__}:{agent.__name__}", tmp_path, LocalExecutor(1), QUICK)
+    assert not (tmp_path / "routes").exists()  # refused before any route
+    record = run_task(RouteTask(ring_route(), f"{__name__}:{agent.__name__}", QUICK))
+    assert record.status == STATUS_AGENT_CRASHED and match in (record.error or "")
+
+
+class ExitsInConstructor(PidAgent):
+    error: ClassVar[type[BaseException]] = SystemExit
+
+    def __init__(self) -> None:
+        raise self.error(7)
+
+
+class InterruptedInConstructor(ExitsInConstructor):
+    error = KeyboardInterrupt
+
+
+@pytest.mark.parametrize("agent", [ExitsInConstructor, InterruptedInConstructor])
+def test_the_constructors_own_exit_is_its_crash_with_its_traceback(agent: type[Agent]) -> None:
+    with pytest.raises(AgentCrash, match=f"constructor raised: {agent.error.__name__}"):
+        evaluate_route(ring_route(), agent, QUICK)
+    record = run_task(RouteTask(ring_route(), f"{__name__}:{agent.__name__}", QUICK))
+    assert record.status == STATUS_AGENT_CRASHED
+    assert "raise self.error(7)" in (record.error or "")  # the agent's own frame is in the record
+
+
+class DestroyHangs(PidAgent):
+    def destroy(self) -> None:
+        time.sleep(30.0)
+
+
+class DestroyRaises(PidAgent):
+    def destroy(self) -> None:
+        raise RuntimeError("could not close the camera")
+
+
+class DestroyHangsInNativeCode(PidAgent):
+    """Blocks SIGALRM and sleeps in destroy(): only the runner's watchdog can stop it."""
+
+    def destroy(self) -> None:
+        signal.pthread_sigmask(signal.SIG_BLOCK, [signal.SIGALRM])
+        time.sleep(40.0)
+
+
+@pytest.mark.parametrize(("agent", "match"), [(DestroyHangs, "longer than 1.0 s"), (DestroyRaises, "camera")])
+def test_a_failing_clean_up_keeps_the_routes_result(agent: type[Agent], match: str) -> None:
+    started = time.monotonic()
+    result = evaluate_route(ring_route(), agent, QUICK)
+    assert time.monotonic() - started < 25.0  # destroy() gets run_step's 1 s, not 30 s
+    reference = evaluate_route(ring_route(), PidAgent, QUICK)
+    assert result.status == reference.status == STATUS_TICK_CAP and result.error is None
+    assert [c.status for c in result.cavs] == [c.status for c in reference.cavs]
+    assert result.driving_score == reference.driving_score
+    assert match in (getattr(result, "cleanup_error", None) or "")
+
+
+def test_a_destroy_hung_in_native_code_is_killed_and_the_route_keeps_its_result(tmp_path: Path) -> None:
+    started = time.monotonic()
+    merged = run_evaluation(
+        [ring_route()], f"{__name__}:DestroyHangsInNativeCode", tmp_path, LocalExecutor(1), QUICK
+    )
+    assert time.monotonic() - started < 35.0  # killed after 1 s + 5 s grace, not after 40 s (or 300 s)
+    (route,) = merged["routes"]
+    assert route["status"] == STATUS_TICK_CAP and route["error"] is None
+    assert [c["status"] for c in route["cavs"]] == [STATUS_TICK_CAP] * 2
+    assert "destroy() made no progress" in route["cleanup_error"]
+    assert merged["summary"]["num_crashed"] == 0
