@@ -467,6 +467,14 @@ def evaluate(
     resume: Annotated[
         bool, typer.Option(help="skip routes already finished in OUT, re-run crashed ones")
     ] = False,
+    skip_invalid: Annotated[
+        bool,
+        typer.Option(
+            help="run the valid routes when some cannot run (bad town, waypoints or scenario parameters): "
+            "those get 'Failed - Invalid route', counted apart and left out of DS/SR; without it the run "
+            "is refused"
+        ),
+    ] = False,
     executor: Annotated[str, typer.Option(help="local or ray")] = "local",
     ray_address: Annotated[str | None, typer.Option(help="address of an existing Ray cluster")] = None,
     record: Annotated[bool, typer.Option(help="save a replayable log per route in OUT/logs")] = False,
@@ -561,7 +569,16 @@ def evaluate(
 
         try:
             merged = run_evaluation(
-                specs, agent, out, runner, config, resume, on_result, on_progress, max_memory=max_memory
+                specs,
+                agent,
+                out,
+                runner,
+                config,
+                resume,
+                on_result,
+                on_progress,
+                max_memory=max_memory,
+                skip_invalid=skip_invalid,
             )
         except KeyboardInterrupt:
             err_console.print(f"interrupted: finished routes are in {out / 'routes'}; continue with --resume")
@@ -783,9 +800,10 @@ def _print_results(merged: dict[str, Any]) -> None:
             table.add_row(name, str(len(group)), ds, sr, why)
     console.print(table)
     s = merged["summary"]
+    invalid = s.get("num_invalid", 0)
     console.print(
         f"driving score {s['driving_score']:.2f}, success rate {s['success_rate']:.2f} %, "
-        f"{s['num_routes']} routes"
+        f"{s['num_routes']} routes" + (f" ({invalid} invalid routes skipped, not scored)" if invalid else "")
     )
 
 

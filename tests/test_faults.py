@@ -1,8 +1,10 @@
-"""Faults blamed on whoever caused them (issue 22, defect 4): what the agent hands over is checked at the
-boundary, its clean-up is timed and cannot undo a finished route, its constructor's own exit is its crash."""
+"""Faults blamed on whoever caused them (issue 22, defects 4 and 5): what the agent hands over is checked
+at the boundary, its clean-up is timed and cannot undo a finished route, its constructor's own exit is
+its crash; routes that cannot run are refused (or skipped and counted apart) before the first one starts."""
 
 from __future__ import annotations
 
+import json
 import re
 import signal
 import time
@@ -12,17 +14,22 @@ from typing import ClassVar
 
 import numpy as np
 import pytest
+from typer.testing import CliRunner
 
 from cmudrive.agents import Agent, Observations, PidAgent
 from cmudrive.agents.base import AgentSetupError
-from cmudrive.bench import EvalConfig, LocalExecutor, evaluate_route, run_evaluation
+from cmudrive.bench import CavSpec, EvalConfig, LocalExecutor, RouteSpec, evaluate_route, run_evaluation
 from cmudrive.bench.evaluator import AgentCrash
 from cmudrive.bench.records import (
     STATUS_AGENT_CRASHED,
+    STATUS_INVALID_ROUTE,
     STATUS_TICK_CAP,
 )
-from cmudrive.bench.routes import ScenarioSpec
-from cmudrive.bench.runner import RouteTask, run_task
+from cmudrive.bench.route_check import TRIGGER_TOLERANCE, check_route
+from cmudrive.bench.routes import ScenarioSpec, write_routes
+from cmudrive.bench.runner import InvalidRoutesError, RouteTask, run_task
+from cmudrive.bench.scenarios import ScenarioConfig
+from cmudrive.cli import app
 from cmudrive.maps import load_map
 from cmudrive.maps.coords import map_to_carla
 from cmudrive.sim.background import BackgroundConfig
@@ -203,3 +210,67 @@ def test_a_destroy_hung_in_native_code_is_killed_and_the_route_keeps_its_result(
     assert [c["status"] for c in route["cavs"]] == [STATUS_TICK_CAP] * 2
     assert "destroy() made no progress" in route["cleanup_error"]
     assert merged["summary"]["num_crashed"] == 0
+
+
+# ---- defect 5: routes that cannot run --------------------------------------------------------------
+
+
+def _bad_routes() -> list[RouteSpec]:
+    ring = ring_route()
+    still = np.tile(ring.cavs[0].waypoints[:1], (5, 1))  # five times the same point: a 0 m route
+    return [
+        replace(ring, id="no_town", town="NoSuchTown"),
+        replace(ring, id="path_town", town="../../etc/passwd"),
+        replace(ring, id="zero_length", cavs=(CavSpec(0, still), ring.cavs[1])),
+        replace(
+            ring,
+            id="bad_param",
+            scenarios=(ScenarioSpec("S1", "Accident", _trigger(40.0), {"distance": "1000"}),),
+        ),
+    ]
+
+
+def test_eval_refuses_invalid_routes_before_any_runs_and_lists_them_all(tmp_path: Path) -> None:
+    routes = [ring_route("ok"), *_bad_routes()]
+    with pytest.raises(InvalidRoutesError) as info:
+        run_evaluation(routes, "pid", tmp_path, LocalExecutor(1), QUICK)
+    message = str(info.value)
+    assert "4 of 5 routes cannot run" in message and "--skip-invalid" in message
+    for rid, problem in [
+        ("no_town", "unknown town 'NoSuchTown'"),
+        ("path_town", "map file not found"),
+        ("zero_length", "shorter than 10 m"),
+        ("bad_param", "distance"),
+    ]:
+        assert any(rid in line and problem in line for line in message.splitlines()), (rid, message)
+    assert not (tmp_path / "routes").exists()
+
+
+def test_cli_eval_exits_non_zero_or_skips_invalid_routes_and_counts_them_apart(tmp_path: Path) -> None:
+    file = tmp_path / "routes.xml"
+    write_routes([ring_route("ok"), *_bad_routes()], file)
+    runner = CliRunner()
+    args = ["eval", "--routes", str(file), "--agent", "pid", "--tick-cap", "3", "--workers", "1"]
+    refused = runner.invoke(app, [*args, "--out", str(tmp_path / "a")])
+    assert refused.exit_code == 1, refused.output
+    assert "no_town" in refused.output and "bad_param" in refused.output
+    assert not (tmp_path / "a" / "results.json").exists()
+    skipped = runner.invoke(app, [*args, "--skip-invalid", "--out", str(tmp_path / "b")])
+    assert skipped.exit_code == 0, skipped.output
+    assert "4 invalid routes skipped" in skipped.output
+    merged = json.loads((tmp_path / "b" / "results.json").read_text())
+    status = {r["route_id"]: r["status"] for r in merged["routes"]}
+    assert status == {"ok": STATUS_TICK_CAP, **{r.id: STATUS_INVALID_ROUTE for r in _bad_routes()}}
+    summary = merged["summary"]
+    assert summary["num_invalid"] == 4 and summary["num_routes"] == 1 and summary["num_crashed"] == 0
+    ok = next(r for r in merged["routes"] if r["route_id"] == "ok")
+    assert summary["driving_score"] == pytest.approx(ok["driving_score"])  # the invalid ones do not count 0
+
+
+def test_one_trigger_tolerance_for_routes_check_and_eval() -> None:
+    assert ScenarioConfig().activation_distance == TRIGGER_TOLERANCE == 2.0
+    off = replace(ring_route(), scenarios=(ScenarioSpec("S1", "ControlLoss", _trigger(40.0, offset=3.5)),))
+    problem = check_route(off, {}).problem or ""
+    assert "trigger point is 3.5 m from CAV 0's route (at most 2 m)" in problem
+    near = replace(ring_route(), scenarios=(ScenarioSpec("S1", "ControlLoss", _trigger(40.0, offset=1.5)),))
+    assert check_route(near, {}).problem is None

@@ -15,7 +15,8 @@ the problem is kept in ``RouteResult.cleanup_error`` (not ``error``: the route i
 
 What is wrong *before* the route starts (unknown town, routes that cannot be planned, scenario
 parameters, an agent that cannot be imported or needs observations we do not provide) is an error of
-the input and is raised with the route id in the message; the runner records it and moves on.
+the input and is raised with the route id in the message; the runner checks every route before the first
+one starts (``route_check``) and refuses the run or records the route as "Failed - Invalid route".
 """
 
 from __future__ import annotations

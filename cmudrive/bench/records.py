@@ -38,6 +38,9 @@ STATUS_TIMEOUT = "Failed - Agent timed out"
 STATUS_TICK_CAP = "Failed - TickRuntime"
 STATUS_AGENT_CRASHED = "Failed - Agent crashed"
 STATUS_SIM_CRASHED = "Failed - Simulation crashed"
+# the route cannot run (unknown town, unplannable waypoints, a bad scenario parameter; found before the run
+# starts, ``cmudrive eval --skip-invalid``): not scored, left out of DS / SR / RC and counted apart
+STATUS_INVALID_ROUTE = "Failed - Invalid route"
 
 
 @dataclass

@@ -46,10 +46,11 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from cmudrive.agents.base import Agent, AgentSetupError, agent_factory, load_agent_class
-from cmudrive.bench.evaluator import AgentCrash, EvalConfig, RouteHooks, evaluate_route
+from cmudrive.bench.evaluator import AgentCrash, EvalConfig, RouteHooks, RouteInputError, evaluate_route
 from cmudrive.bench.metrics import route_result, route_status, summarize
 from cmudrive.bench.records import (
     STATUS_AGENT_CRASHED,
+    STATUS_INVALID_ROUTE,
     STATUS_RUNNING,
     STATUS_SIM_CRASHED,
     RouteResult,
@@ -58,6 +59,7 @@ from cmudrive.bench.records import (
 from cmudrive.bench.routes import RouteSpec
 
 CRASHED = (STATUS_AGENT_CRASHED, STATUS_SIM_CRASHED)
+RERUN = (*CRASHED, STATUS_INVALID_ROUTE)  # what --resume runs again (an invalid route is checked again)
 ROUTES_DIR = "routes"
 PROGRESS_EVERY = 20  # ticks between progress messages (and partial scores) from a worker
 WATCHDOG_GRACE = 5.0  # [s] added to the agent's time limits before its worker is killed
@@ -69,6 +71,11 @@ PHASES = ("sim", "setup", "agent", "cleanup")  # what a worker runs, as stored i
 
 class OutputFolderError(ValueError):
     """The output folder holds records of an earlier run and this run is not a resume."""
+
+
+class InvalidRoutesError(ValueError):
+    """Routes of the run cannot run (bad town, unplannable waypoints, scenario parameters); the message
+    lists every one with its problem."""
 
 
 class RouteJob(Protocol):
@@ -126,9 +133,12 @@ def run_task(task: RouteTask, progress: Any = None, hooks: RouteHooks | None = N
 
 
 def crashed_record(spec: RouteSpec, exc: BaseException) -> RouteResult:
-    """The record of a route that could not run: the agent's fault (it cannot be set up, or crashed)
-    or anything else (bad route input, a dead worker process)."""
-    status = STATUS_AGENT_CRASHED if isinstance(exc, AgentSetupError | AgentCrash) else STATUS_SIM_CRASHED
+    """The record of a route that could not run: the agent's fault (it cannot be set up, or crashed),
+    the route's (bad route input) or anything else (a dead worker process)."""
+    if isinstance(exc, AgentSetupError | AgentCrash):
+        status = STATUS_AGENT_CRASHED
+    else:
+        status = STATUS_INVALID_ROUTE if isinstance(exc, RouteInputError) else STATUS_SIM_CRASHED
     result = route_result(
         spec.id,
         spec.town,
@@ -395,8 +405,9 @@ def record_path(out: Path, route_id: str) -> Path:
 
 
 def finished_route_ids(out: Path, route_ids: list[str]) -> set[str]:
-    """Routes of ``route_ids`` with a record that did not crash (what --resume skips)."""
-    return {rid for rid, record in _records(out, route_ids).items() if record.status not in CRASHED}
+    """Routes of ``route_ids`` with a record that did not crash and is not invalid (what --resume
+    skips)."""
+    return {rid for rid, record in _records(out, route_ids).items() if record.status not in RERUN}
 
 
 def _records(out: Path, route_ids: list[str]) -> dict[str, RouteResult]:
@@ -422,6 +433,21 @@ def merge_results(out: Path, order: list[str], expected: int | None = None) -> d
     return merged
 
 
+def _invalid_routes(routes: Sequence[RouteSpec], skip_invalid: bool) -> dict[str, str]:
+    """Route id -> problem of the routes that cannot run; InvalidRoutesError listing them all unless
+    ``skip_invalid``."""
+    from cmudrive.bench.route_check import route_problems
+
+    problems = route_problems(routes)
+    if problems and not skip_invalid:
+        lines = "\n".join(f"  {problems[spec.id]}" for spec in routes if spec.id in problems)
+        raise InvalidRoutesError(
+            f"{len(problems)} of {len(routes)} routes cannot run (fix them, or pass --skip-invalid to "
+            f"record them as {STATUS_INVALID_ROUTE!r} and run the others):\n{lines}"
+        )
+    return problems
+
+
 def run_evaluation(
     routes: list[RouteSpec],
     agent: str | type[Agent],
@@ -432,9 +458,14 @@ def run_evaluation(
     on_result: Callable[[RouteResult], None] | None = None,
     on_progress: ProgressCallback | None = None,
     max_memory: float | None = None,
+    skip_invalid: bool = False,
 ) -> dict[str, Any]:
     """Evaluate ``routes`` with ``agent`` and return the merged results (also in OUT/results.json).
 
+    Before any route starts, the agent (class, options, observations) and every route
+    (``route_check.route_problems``) are checked: an agent that cannot run raises
+    :class:`AgentSetupError`; invalid routes raise :class:`InvalidRoutesError` listing each, or, with
+    ``skip_invalid``, get a "Failed - Invalid route" record and do not run (the summary counts them apart).
     Without ``resume``, ``out`` must not hold route records yet (:class:`OutputFolderError`)."""
     agent_spec = agent if isinstance(agent, str) else f"{agent.__module__}:{agent.__qualname__}"
     config = config or EvalConfig()
@@ -449,8 +480,17 @@ def run_evaluation(
         )
     if max_memory is not None and not max_memory > 0.0:
         raise ValueError(f"max_memory must be a positive number of GiB, got {max_memory}")
+    invalid = _invalid_routes(routes, skip_invalid)  # every route checked before the first one runs
     out.mkdir(parents=True, exist_ok=True)
     skip = finished_route_ids(out, ids) if resume else set()
+    for spec in routes:
+        if spec.id in invalid:
+            record = crashed_record(spec, RouteInputError(invalid[spec.id]))
+            record.error = invalid[spec.id]  # the problem, no traceback: nothing ran
+            write_json_atomic(record_path(out, spec.id), record.to_json())
+            if on_result is not None:
+                on_result(record)
+    skip |= set(invalid)
     tasks = [RouteTask(spec, agent_spec, config, max_memory) for spec in routes if spec.id not in skip]
     for result in executor.run(tasks, on_progress):
         write_json_atomic(record_path(out, result.route_id), result.to_json())
@@ -462,6 +502,7 @@ def run_evaluation(
 
 __all__ = [
     "Executor",
+    "InvalidRoutesError",
     "LocalExecutor",
     "OutputFolderError",
     "RayExecutor",
