@@ -1,11 +1,13 @@
-"""Faults blamed on whoever caused them (issue 22, defects 4 and 5): what the agent hands over is checked
-at the boundary, its clean-up is timed and cannot undo a finished route, its constructor's own exit is
-its crash; routes that cannot run are refused (or skipped and counted apart) before the first one starts."""
+"""Faults blamed on whoever caused them (issue 22, defects 4, 5 and 8): what the agent hands over is
+checked at the boundary, its clean-up is timed and cannot undo a finished route, its constructor's own
+exit is its crash; routes that cannot run are refused (or skipped and counted apart) before the first
+one starts; a checkpoint that does not load stops the run before any route."""
 
 from __future__ import annotations
 
 import json
 import re
+import shutil
 import signal
 import time
 from dataclasses import replace
@@ -274,3 +276,44 @@ def test_one_trigger_tolerance_for_routes_check_and_eval() -> None:
     assert "trigger point is 3.5 m from CAV 0's route (at most 2 m)" in problem
     near = replace(ring_route(), scenarios=(ScenarioSpec("S1", "ControlLoss", _trigger(40.0, offset=1.5)),))
     assert check_route(near, {}).problem is None
+
+
+# ---- defect 8: a checkpoint that does not load ---------------------------------------------------
+
+TINY = Path(__file__).resolve().parents[1] / "cmudrive" / "assets" / "models" / "v2v-vla-tiny-no-speed"
+
+
+def _copy_checkpoint(tmp_path: Path) -> Path:
+    dst = tmp_path / "ckpt"
+    shutil.copytree(TINY, dst)
+    return dst
+
+
+def test_a_broken_checkpoint_stops_the_run_before_any_route(tmp_path: Path) -> None:
+    pytest.importorskip("torch")
+    ckpt = _copy_checkpoint(tmp_path)
+    weights = ckpt / "model.safetensors"
+    weights.write_bytes(weights.read_bytes()[: weights.stat().st_size // 2])  # a cut-off download
+    file = tmp_path / "one.xml"
+    write_routes([ring_route("ok")], file)
+    out = tmp_path / "out"
+    args = ["eval", "--routes", str(file), "--agent", "v2v-vla", "--checkpoint", str(ckpt), "--tick-cap", "3"]
+    result = CliRunner().invoke(app, [*args, "--workers", "1", "--out", str(out)])
+    assert result.exit_code == 1, result.output
+    assert "V2VVLAAgent cannot run" in result.output
+    assert not (out / "routes").exists()
+
+
+def test_a_checkpoint_whose_config_names_another_size_is_refused(tmp_path: Path) -> None:
+    pytest.importorskip("torch")
+    from cmudrive.model.modeling import V2VVLA
+
+    ckpt = _copy_checkpoint(tmp_path)
+    meta = json.loads((ckpt / "vla_config.json").read_text())
+    meta["config"]["text"]["hidden_size"] = 512  # the config of a bigger model next to tiny weights
+    (ckpt / "vla_config.json").write_text(json.dumps(meta))
+    with pytest.raises(
+        ValueError, match=r"vla_config.json does not describe.*text.hidden_size is 512, the backbone's 128"
+    ):
+        V2VVLA.from_pretrained(ckpt)
+    V2VVLA.from_pretrained(TINY)  # a consistent one still loads

@@ -124,6 +124,13 @@ class Agent(ABC):
     def destroy(self) -> None:  # noqa: B027 - optional hook, nothing to do by default
         """Called once when the route ends (also after a crash)."""
 
+    @classmethod  # noqa: B027 - optional hook, nothing to check by default
+    def check_options(cls, options: Mapping[str, Any]) -> None:
+        """Called once before an evaluation starts, with the constructor's keyword arguments: raise
+        (naming the file or option) when the agent cannot run with them, e.g. a checkpoint that does not
+        load, so that the run stops with the reason instead of crashing every route. Runs in the main
+        process: keep it to what a route's setup would read anyway."""
+
 
 def declared_observations(agent: Agent | type[Agent]) -> frozenset[Observation]:
     """The agent class's :attr:`Agent.observations` as Observations, or AgentSetupError naming the agent

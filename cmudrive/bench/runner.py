@@ -433,6 +433,16 @@ def merge_results(out: Path, order: list[str], expected: int | None = None) -> d
     return merged
 
 
+def check_agent(cls: type[Agent], options: dict[str, Any]) -> None:
+    """The agent can run with these options: its constructor takes them, its observations declaration
+    is valid, and its own ``check_options`` (a checkpoint that loads) passes; AgentSetupError else."""
+    agent_factory(cls, options)
+    try:
+        cls.check_options(options)
+    except Exception as exc:
+        raise AgentSetupError(f"agent {cls.__name__} cannot run: {exc}") from exc
+
+
 def _invalid_routes(routes: Sequence[RouteSpec], skip_invalid: bool) -> dict[str, str]:
     """Route id -> problem of the routes that cannot run; InvalidRoutesError listing them all unless
     ``skip_invalid``."""
@@ -462,14 +472,14 @@ def run_evaluation(
 ) -> dict[str, Any]:
     """Evaluate ``routes`` with ``agent`` and return the merged results (also in OUT/results.json).
 
-    Before any route starts, the agent (class, options, observations) and every route
-    (``route_check.route_problems``) are checked: an agent that cannot run raises
+    Before any route starts, the agent (class, options: ``Agent.check_options``, observations) and every
+    route (``route_check.route_problems``) are checked: an agent that cannot run raises
     :class:`AgentSetupError`; invalid routes raise :class:`InvalidRoutesError` listing each, or, with
     ``skip_invalid``, get a "Failed - Invalid route" record and do not run (the summary counts them apart).
     Without ``resume``, ``out`` must not hold route records yet (:class:`OutputFolderError`)."""
     agent_spec = agent if isinstance(agent, str) else f"{agent.__module__}:{agent.__qualname__}"
     config = config or EvalConfig()
-    agent_factory(load_agent_class(agent_spec), config.agent_options)  # fail fast, before any worker starts
+    check_agent(load_agent_class(agent_spec), config.agent_options)  # fail fast, before any worker starts
     check_routes(routes)
     ids = [spec.id for spec in routes]
     old = sorted((out / ROUTES_DIR).glob("*.json")) if (out / ROUTES_DIR).is_dir() else []
@@ -508,6 +518,7 @@ __all__ = [
     "RayExecutor",
     "RouteJob",
     "RouteTask",
+    "check_agent",
     "check_routes",
     "crashed_record",
     "finished_route_ids",
