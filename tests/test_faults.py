@@ -269,6 +269,18 @@ def test_cli_eval_exits_non_zero_or_skips_invalid_routes_and_counts_them_apart(t
     assert summary["driving_score"] == pytest.approx(ok["driving_score"])  # the invalid ones do not count 0
 
 
+def test_resume_checks_a_skipped_route_again(tmp_path: Path) -> None:
+    """A route recorded invalid is not finished: fixed in the route file, --resume runs it."""
+    ring = ring_route("fixed")
+    broken = replace(ring, town="NoSuchTown")
+    first = run_evaluation([broken], "pid", tmp_path, LocalExecutor(1), QUICK, skip_invalid=True)
+    assert [r["status"] for r in first["routes"]] == [STATUS_INVALID_ROUTE]
+    assert first["summary"]["num_invalid"] == 1 and first["summary"]["driving_score"] == 0.0
+    again = run_evaluation([ring], "pid", tmp_path, LocalExecutor(1), QUICK, resume=True)
+    assert [r["status"] for r in again["routes"]] == [STATUS_TICK_CAP]
+    assert again["summary"]["num_invalid"] == 0
+
+
 def test_one_trigger_tolerance_for_routes_check_and_eval() -> None:
     assert ScenarioConfig().activation_distance == TRIGGER_TOLERANCE == 2.0
     off = replace(ring_route(), scenarios=(ScenarioSpec("S1", "ControlLoss", _trigger(40.0, offset=3.5)),))
