@@ -269,6 +269,22 @@ def test_cli_eval_exits_non_zero_or_skips_invalid_routes_and_counts_them_apart(t
     assert summary["driving_score"] == pytest.approx(ok["driving_score"])  # the invalid ones do not count 0
 
 
+def test_cli_eval_refuses_routes_the_reader_rejects_unless_skip_invalid(tmp_path: Path) -> None:
+    file = tmp_path / "routes.xml"
+    write_routes([ring_route("ok"), ring_route("foggy")], file)
+    text = file.read_text()
+    at = text.index('id="foggy"')
+    file.write_text(text[:at] + text[at:].replace('weather="ClearNoon"', 'weather="Sunnyish"', 1))
+    runner = CliRunner()
+    args = ["eval", "--routes", str(file), "--agent", "pid", "--tick-cap", "3", "--workers", "1"]
+    refused = runner.invoke(app, [*args, "--out", str(tmp_path / "a")])
+    assert refused.exit_code == 1 and "route foggy" in refused.output and "Sunnyish" in refused.output
+    assert not (tmp_path / "a").exists()
+    skipped = runner.invoke(app, [*args, "--skip-invalid", "--out", str(tmp_path / "b")])
+    assert skipped.exit_code == 0, skipped.output
+    assert "skipping route foggy" in skipped.output
+
+
 def test_resume_checks_a_skipped_route_again(tmp_path: Path) -> None:
     """A route recorded invalid is not finished: fixed in the route file, --resume runs it."""
     ring = ring_route("fixed")
