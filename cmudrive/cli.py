@@ -358,9 +358,12 @@ def _routes_path(name_or_path: str) -> Path:
     return Path(__file__).resolve().parent / "assets" / "routes" / f"{name_or_path}.xml"
 
 
-def _read_specs(routes: str, town_dir: list[Path] | None, limit: int | None = None) -> tuple[Path, list[Any]]:
+def _read_specs(
+    routes: str, town_dir: list[Path] | None, limit: int | None = None, refuse_invalid: bool = False
+) -> tuple[Path, list[Any]]:
     """The valid routes of a route file or set (invalid ones reported and skipped, at most ``limit``),
-    with the extra town folders; exits naming the file when none is left."""
+    with the extra town folders; exits naming the file when none is left, or, with ``refuse_invalid``,
+    when any route cannot be read (every one listed)."""
     from cmudrive.bench.routes import read_routes
 
     path = _routes_path(routes)
@@ -368,6 +371,11 @@ def _read_specs(routes: str, town_dir: list[Path] | None, limit: int | None = No
         specs, invalid = read_routes(path, strict=False)
     except (OSError, ValueError) as exc:
         _fail(exc)
+    if invalid and refuse_invalid:
+        lines = "".join(f"\n  route {route_id}: {message}" for route_id, message in invalid)
+        _fail(
+            ValueError(f"{path}: {len(invalid)} routes cannot be read (fix them, or --skip-invalid):{lines}")
+        )
     for route_id, message in invalid:
         err_console.print(f"[yellow]skipping route {route_id}:[/] {message}")
     specs = specs[:limit] if limit is not None else specs
@@ -467,6 +475,14 @@ def evaluate(
     resume: Annotated[
         bool, typer.Option(help="skip routes already finished in OUT, re-run crashed ones")
     ] = False,
+    skip_invalid: Annotated[
+        bool,
+        typer.Option(
+            help="run the valid routes when some cannot run (bad town, waypoints or scenario parameters): "
+            "those get 'Failed - Invalid route', counted apart and left out of DS/SR; without it the run "
+            "is refused"
+        ),
+    ] = False,
     executor: Annotated[str, typer.Option(help="local or ray")] = "local",
     ray_address: Annotated[str | None, typer.Option(help="address of an existing Ray cluster")] = None,
     record: Annotated[bool, typer.Option(help="save a replayable log per route in OUT/logs")] = False,
@@ -516,7 +532,7 @@ def evaluate(
     from cmudrive.sensors import DetectionNoise
     from cmudrive.v2v import LinkConfig
 
-    path, specs = _read_specs(routes, town_dir)
+    path, specs = _read_specs(routes, town_dir, refuse_invalid=not skip_invalid)
     if seed:
         from cmudrive.bench.routes import MAX_SEED
 
@@ -561,7 +577,16 @@ def evaluate(
 
         try:
             merged = run_evaluation(
-                specs, agent, out, runner, config, resume, on_result, on_progress, max_memory=max_memory
+                specs,
+                agent,
+                out,
+                runner,
+                config,
+                resume,
+                on_result,
+                on_progress,
+                max_memory=max_memory,
+                skip_invalid=skip_invalid,
             )
         except KeyboardInterrupt:
             err_console.print(f"interrupted: finished routes are in {out / 'routes'}; continue with --resume")
@@ -783,9 +808,10 @@ def _print_results(merged: dict[str, Any]) -> None:
             table.add_row(name, str(len(group)), ds, sr, why)
     console.print(table)
     s = merged["summary"]
+    invalid = s.get("num_invalid", 0)
     console.print(
         f"driving score {s['driving_score']:.2f}, success rate {s['success_rate']:.2f} %, "
-        f"{s['num_routes']} routes"
+        f"{s['num_routes']} routes" + (f" ({invalid} invalid routes skipped, not scored)" if invalid else "")
     )
 
 

@@ -13,8 +13,9 @@ from cmudrive.agents import PidAgent
 from cmudrive.bench import EvalConfig, LocalExecutor, RouteSpec, evaluate_route, run_evaluation
 from cmudrive.bench.criteria import CriteriaConfig
 from cmudrive.bench.evaluator import RouteInputError
-from cmudrive.bench.records import STATUS_BLOCKED, STATUS_SIM_CRASHED
+from cmudrive.bench.records import STATUS_BLOCKED, STATUS_INVALID_ROUTE, STATUS_SIM_CRASHED
 from cmudrive.bench.routes import ScenarioSpec
+from cmudrive.bench.runner import InvalidRoutesError
 from cmudrive.bench.scenarios import Param, ScenarioConfig, ScenarioError
 from cmudrive.bench.scenarios.params import DIRECTION, parse_params
 from tests.scenario_helpers import EMPTY, StopsAt, interurban, lane_cav, run, scenario, trigger
@@ -93,13 +94,18 @@ def test_bad_scenario_input_is_a_route_input_error(route_id: str, kwargs: dict, 
         assert w in text
 
 
-def test_a_bad_scenario_does_not_stop_the_other_routes(tmp_path: Path) -> None:
+def test_a_bad_scenario_refuses_the_run_or_is_skipped_without_stopping_the_other_routes(
+    tmp_path: Path,
+) -> None:
+    """A scenario parameter out of range is the route's fault, found before any route runs: the run is
+    refused naming it, or, with skip_invalid, the route is recorded invalid and the others run."""
     routes = [ring_spec("bad", distance="1000"), ring_spec("good", distance="40")]
-    merged = run_evaluation(
-        routes, PidAgent, tmp_path, LocalExecutor(1), EvalConfig(background=EMPTY, tick_cap=200)
-    )
+    config = EvalConfig(background=EMPTY, tick_cap=200)
+    with pytest.raises(InvalidRoutesError, match=r"route 'bad', scenario 'S1'.*'distance'"):
+        run_evaluation(routes, PidAgent, tmp_path / "refused", LocalExecutor(1), config)
+    merged = run_evaluation(routes, PidAgent, tmp_path, LocalExecutor(1), config, skip_invalid=True)
     by_id = {r["route_id"]: r for r in merged["routes"]}
-    assert by_id["bad"]["status"] == STATUS_SIM_CRASHED
+    assert by_id["bad"]["status"] == STATUS_INVALID_ROUTE
     assert "scenario 'S1'" in by_id["bad"]["error"] and "'distance'" in by_id["bad"]["error"]
     assert by_id["good"]["status"] != STATUS_SIM_CRASHED and by_id["good"]["scenario_simulated"] is True
 

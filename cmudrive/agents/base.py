@@ -124,21 +124,54 @@ class Agent(ABC):
     def destroy(self) -> None:  # noqa: B027 - optional hook, nothing to do by default
         """Called once when the route ends (also after a crash)."""
 
+    @classmethod  # noqa: B027 - optional hook, nothing to check by default
+    def check_options(cls, options: Mapping[str, Any]) -> None:
+        """Called once before an evaluation starts, with the constructor's keyword arguments: raise
+        (naming the file or option) when the agent cannot run with them, e.g. a checkpoint that does not
+        load, so that the run stops with the reason instead of crashing every route. Runs in the main
+        process: keep it to what a route's setup would read anyway."""
 
-def check_observations(agent: Agent, provided: frozenset[Observation] = PROVIDED) -> None:
-    declared = frozenset(Observation(o) for o in type(agent).observations)
+
+def declared_observations(agent: Agent | type[Agent]) -> frozenset[Observation]:
+    """The agent class's :attr:`Agent.observations` as Observations, or AgentSetupError naming the agent
+    and what is wrong with the declaration (not a set of observation names, an unknown name)."""
+    cls = agent if isinstance(agent, type) else type(agent)
+    raw = getattr(cls, "observations", None)
+    if isinstance(raw, str | bytes) or not isinstance(raw, set | frozenset | list | tuple):
+        raise AgentSetupError(
+            f"agent {cls.__name__}: observations must be a set of Observation values, got {raw!r}"
+        )
+    known = ", ".join(o.value for o in Observation)
+    declared = []
+    for o in raw:
+        try:
+            declared.append(Observation(o))
+        except (ValueError, TypeError):
+            raise AgentSetupError(
+                f"agent {cls.__name__}: observations declares {o!r}, which is no observation (known: {known})"
+            ) from None
+    return frozenset(declared)
+
+
+def check_observations(
+    agent: Agent | type[Agent], provided: frozenset[Observation] = PROVIDED
+) -> frozenset[Observation]:
+    """The agent's declared observations, checked: each known, visibility only with privileged, every
+    one provided here (AgentSetupError naming the agent and the problem)."""
+    declared = declared_observations(agent)
+    name = agent.__name__ if isinstance(agent, type) else type(agent).__name__
     if Observation.VISIBILITY in declared and Observation.PRIVILEGED not in declared:
         raise AgentSetupError(
-            f"agent {type(agent).__name__} asks for visibility, which indexes the privileged snapshot: "
-            "declare privileged too"
+            f"agent {name} asks for visibility, which indexes the privileged snapshot: declare privileged too"
         )
     missing = declared - provided
     if missing:
         names = ", ".join(sorted(o.value for o in missing))
         raise AgentSetupError(
-            f"agent {type(agent).__name__} needs observations this evaluator does not provide: {names} "
+            f"agent {name} needs observations this evaluator does not provide: {names} "
             f"(provided: {', '.join(sorted(o.value for o in provided))})"
         )
+    return declared
 
 
 # short names of the bundled agents (``cmudrive eval --agent expert``)
@@ -176,7 +209,8 @@ def load_agent_class(spec: str) -> type[Agent]:
 def agent_factory(cls: type[Agent], options: Mapping[str, Any] | None = None) -> Callable[[], Agent]:
     """What makes the agent: ``cls(**options)`` (``EvalConfig.agent_options``, e.g. ``checkpoint=PATH``),
     checked against the constructor's signature now, so that an option it does not take fails before any
-    route starts."""
+    route starts; the class's observations declaration is checked too (:func:`check_observations`)."""
+    check_observations(cls)
     if not options:
         return cls
     try:

@@ -26,6 +26,7 @@ closed loop than the pair that reads it (``v2v-vla-tiny/``, ``v2v-vla-baseline-t
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -61,6 +62,21 @@ def resolve_checkpoint(checkpoint: str | Path | None, cooperative: bool) -> Path
             f"{flag}) and pass --checkpoint runs/NAME/model"
         )
     return path
+
+
+def load_checkpoint(path: Path, device: str, cooperative: bool) -> Any:
+    """The V2VVLA model saved in ``path`` on ``device``; ValueError when it is the other kind of model
+    (cooperative or baseline) than the agent's."""
+    from cmudrive.model.modeling import V2VVLA
+
+    model = V2VVLA.from_pretrained(path, device=device).eval()
+    if model.config.cooperative != cooperative:
+        kind = "cooperative" if model.config.cooperative else "baseline"
+        raise ValueError(
+            f"{path} holds a {kind} model; use the "
+            f"{'v2v-vla' if model.config.cooperative else 'v2v-vla-baseline'} agent"
+        )
+    return model
 
 
 class TargetPoints:
@@ -141,20 +157,20 @@ class V2VVLAAgent(Agent):
         self.model: Any = None
         self.last_text: list[str] = []
 
+    @classmethod
+    def check_options(cls, options: Mapping[str, Any]) -> None:
+        """Before the first route: the options are valid and the checkpoint loads (on the CPU, once; a
+        missing, broken or inconsistent checkpoint stops the run with the reason instead of crashing
+        every route). The tiny checkpoints load in about a second after torch's import."""
+        agent = cls(**options)
+        load_checkpoint(agent.checkpoint, "cpu", cls.cooperative)
+
     def setup(self, route: RouteSetup) -> None:
         if self.model is None:
             import torch
 
-            from cmudrive.model.modeling import V2VVLA
-
             device = self.device or ("cuda" if torch.cuda.is_available() else "cpu")
-            self.model = V2VVLA.from_pretrained(self.checkpoint, device=device).eval()
-            if self.model.config.cooperative != self.cooperative:
-                kind = "cooperative" if self.model.config.cooperative else "baseline"
-                raise ValueError(
-                    f"{self.checkpoint} holds a {kind} model; use the "
-                    f"{'v2v-vla' if self.model.config.cooperative else 'v2v-vla-baseline'} agent"
-                )
+            self.model = load_checkpoint(self.checkpoint, device, self.cooperative)
         k = len(route.cavs)
         self.targets = TargetPoints(route.cavs)
         self.controller = WaypointController(k)

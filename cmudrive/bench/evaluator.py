@@ -1,16 +1,28 @@
 """The closed loop of one route: world, agent, criteria, tick after tick, until every CAV has finished.
 
-``evaluate_route`` never raises for what goes wrong *inside* a route: an agent that raises, returns NaN
-or hangs past the per-step timeout ends the route as "Failed - Agent crashed"; an error of the
-simulation ends it as "Failed - Simulation crashed"; both keep the traceback in ``RouteResult.error``
-and the scores the CAVs had reached. What is wrong *before* the route starts (unknown town, routes that
-cannot be planned, an agent that cannot be imported or needs observations we do not provide) is an
-error of the input and is raised with the route id in the message; the runner records it and moves on.
+``evaluate_route`` never raises for what goes wrong *inside* a route: an agent that raises (SystemExit
+and KeyboardInterrupt too, in its constructor, ``setup`` or ``run_step``), hangs past the per-step
+timeout or hands over controls that are not one finite number per active CAV (strings, the wrong shape,
+NaN: checked right after ``run_step`` returns, before the scenarios' perturbation or the world touch
+them, the message naming the control, the tick and the CAV) ends the route as "Failed - Agent crashed";
+an error of the simulation (ours, after that check) ends it as "Failed - Simulation crashed"; both keep
+the traceback in ``RouteResult.error`` and the scores the CAVs had reached.
+
+The agent's ``destroy()`` runs under the same time limit as ``run_step``, after the route's scores are
+final (and, in a runner's worker, sent to the parent first). When it raises or overruns, the route keeps
+its result, statuses included: the clean-up is no part of the drive, so no CAV is marked crashed for it;
+the problem is kept in ``RouteResult.cleanup_error`` (not ``error``: the route is not counted crashed).
+
+What is wrong *before* the route starts (unknown town, routes that cannot be planned, scenario
+parameters, an agent that cannot be imported or needs observations we do not provide) is an error of
+the input and is raised with the route id in the message; the runner checks every route before the first
+one starts (``route_check``) and refuses the run or records the route as "Failed - Invalid route".
 """
 
 from __future__ import annotations
 
 import signal
+import sys
 import threading
 import time
 import traceback
@@ -46,7 +58,7 @@ from cmudrive.bench.routes import RouteSpec
 from cmudrive.bench.scenarios import ScenarioConfig, ScenarioError, ScenarioManager, build_scenarios
 from cmudrive.maps import MapError, RoadMap, Route, load_map, load_scenery
 from cmudrive.sim.background import BackgroundActivity, BackgroundConfig
-from cmudrive.sim.dynamics import ControlError, Controls
+from cmudrive.sim.dynamics import ControlError, Controls, check_controls
 from cmudrive.sim.snapshot import Role, Snapshot
 from cmudrive.sim.world import World, WorldConfig
 
@@ -95,10 +107,11 @@ class RouteHooks:
     """What a caller (the runner's worker) hears of a running route.
 
     ``tick(t)`` after every tick; ``phase(name)`` when the route enters ``"setup"`` (the agent's
-    constructor or ``setup`` runs), ``"agent"`` (its ``run_step`` runs) or ``"sim"`` (our code runs), so
-    that a watchdog outside the process can tell a hung or dead agent from a crashed simulation;
-    ``partial(result)`` every ``partial_every`` ticks with the scores so far, so that a route whose
-    process dies keeps them."""
+    constructor or ``setup`` runs), ``"agent"`` (its ``run_step`` runs), ``"cleanup"`` (its ``destroy``
+    runs) or ``"sim"`` (our code runs), so that a watchdog outside the process can tell a hung or dead
+    agent from a crashed simulation; ``partial(result)`` every ``partial_every`` ticks with the scores so
+    far, and once with the final record before ``destroy``, so that a route whose process dies keeps
+    them."""
 
     tick: Callable[[int], None] | None = None
     phase: Callable[[str], None] | None = None
@@ -142,11 +155,10 @@ def _run_route(
     hooks.enter("setup")
     try:
         agent = make_agent()
-    except Exception as exc:
+    except BaseException as exc:  # SystemExit and KeyboardInterrupt from agent code are its crash too
         raise AgentCrash(f"the agent's constructor raised: {exc!r}") from exc
     hooks.enter("sim")
-    check_observations(agent)
-    declared = frozenset(Observation(o) for o in type(agent).observations)
+    declared = check_observations(agent)
     privileged = Observation.PRIVILEGED in declared
     world_config = WorldConfig(town=str(town_path), seed=spec.seed, weather=spec.weather)
     with World(world_config, road_map=road_map) as world:
@@ -160,7 +172,7 @@ def _run_route(
         try:
             scenarios = build_scenarios(spec, world, road_map, routes, criteria, config.scenarios)
         except ScenarioError as exc:
-            _destroy(agent)
+            _destroy(agent, config.step_timeout, hooks)
             raise RouteInputError(str(exc)) from exc
         recorder = _recorder(spec, routes, config)
         observer = ObservationBuilder(
@@ -173,43 +185,61 @@ def _run_route(
             road_map=road_map,
         )
         loop = _Loop(world, criteria, agent, observer, config, recorder, hooks, spec, scenarios)
-        error = None
         try:
-            loop.setup(_setup(spec, road_map, routes, cav_ids, privileged))
-            loop.run()
-            scenarios.finish()  # scenario actors leave, blocked tests resume (before the world closes)
-        except AgentCrash:
-            criteria.end_route(STATUS_AGENT_CRASHED)
-            error = traceback.format_exc()
-        except Exception:  # the simulation failed: keep what was scored, record the traceback
-            criteria.end_route(STATUS_SIM_CRASHED)
-            error = traceback.format_exc()
+            error = _drive(loop, scenarios, criteria, _setup(spec, road_map, routes, cav_ids, privileged))
+            result = _final_result(spec, routes, loop, recorder, config, error)
+            if hooks.partial is not None:  # final: a destroy() hung past the watchdog keeps these scores
+                hooks.partial(result)
         finally:
-            _destroy(agent)
-        cavs = criteria.results()
-        for i, cav in enumerate(cavs):
-            cav.comfort = comfort_score(*loop.kinematics(i))
-            cav.first_junction_completion = first_junction_completion(routes[i])
-        if recorder is not None:
-            for i, cav in enumerate(cavs):
-                for events in cav.infractions.values():
-                    for inf in events:  # log ticks count recorded snapshots: world step 1 is log tick 0
-                        recorder.add_events(max(inf.tick - 1, 0), [infraction_event(i, inf)])
-            recorder.save(Path(config.record_dir or ".") / f"{record_stem(spec.id)}.npz")
-    result = route_result(
-        spec.id,
-        spec.town,
-        spec.weather,
-        spec.scenarios[0].type if spec.scenarios else "",
-        cavs,
-        seed=spec.seed,
-    )
-    result.ticks = world.step_count
+            cleanup_error = _destroy(agent, config.step_timeout, hooks)
+    result.cleanup_error = cleanup_error
     result.wall_time = time.perf_counter() - started
+    return result
+
+
+def _drive(loop: _Loop, scenarios: ScenarioManager, criteria: RouteCriteria, setup: RouteSetup) -> str | None:
+    """The agent's setup and the route's ticks; the traceback when the agent or the simulation crashed
+    (the CAVs still running get that status), else None."""
+    try:
+        loop.setup(setup)
+        loop.run()
+        scenarios.finish()  # scenario actors leave, blocked tests resume (before the world closes)
+    except AgentCrash:
+        criteria.end_route(STATUS_AGENT_CRASHED)
+        return traceback.format_exc()
+    except Exception:  # the simulation failed: keep what was scored, record the traceback
+        criteria.end_route(STATUS_SIM_CRASHED)
+        return traceback.format_exc()
+    return None
+
+
+def _final_result(
+    spec: RouteSpec,
+    routes: list[Route],
+    loop: _Loop,
+    recorder: RouteRecorder | None,
+    config: EvalConfig,
+    error: str | None,
+) -> RouteResult:
+    """The route's record once its ticks are done (comfort and first-junction shares added; the log,
+    with the infraction events, saved)."""
+    cavs = loop.criteria.results()
+    for i, cav in enumerate(cavs):
+        cav.comfort = comfort_score(*loop.kinematics(i))
+        cav.first_junction_completion = first_junction_completion(routes[i])
+    if recorder is not None:
+        for i, cav in enumerate(cavs):
+            for events in cav.infractions.values():
+                for inf in events:  # log ticks count recorded snapshots: world step 1 is log tick 0
+                    recorder.add_events(max(inf.tick - 1, 0), [infraction_event(i, inf)])
+        recorder.save(Path(config.record_dir or ".") / f"{record_stem(spec.id)}.npz")
+    scenario = spec.scenarios[0].type if spec.scenarios else ""
+    result = route_result(spec.id, spec.town, spec.weather, scenario, cavs, seed=spec.seed)
+    result.ticks = loop.world.step_count
     result.error = error
-    result.scenario_simulated = scenarios.simulated  # None without scenarios
-    if observer.link_stats is not None:
-        result.v2v = observer.link_stats.to_json()
+    result.scenario_simulated = loop.scenarios.simulated  # None without scenarios
+    if loop.observer.link_stats is not None:
+        result.v2v = loop.observer.link_stats.to_json()
     return result
 
 
@@ -244,11 +274,22 @@ def _recorder(spec: RouteSpec, routes: list[Route], config: EvalConfig) -> Route
     return RouteRecorder(spec.id, spec.town, [r.xy for r in routes])
 
 
-def _destroy(agent: Agent) -> None:
+def _destroy(agent: Agent, timeout: float, hooks: RouteHooks) -> str | None:
+    """The agent's ``destroy()`` under ``run_step``'s time limit (phase ``"cleanup"`` for the runner's
+    watchdog); what went wrong, or None. A failing clean-up never hides the route's result."""
+    hooks.enter("cleanup")
+    problem: str | None = None
     try:
-        agent.destroy()
-    except Exception:  # a failing clean-up must not hide the route's result
-        traceback.print_exc()
+        with _time_limit(timeout):
+            agent.destroy()
+    except _StepTimeout:
+        problem = f"the agent's destroy() took longer than {timeout:.1f} s and was interrupted"
+    except BaseException as exc:  # SystemExit and KeyboardInterrupt from agent code too
+        problem = f"the agent's destroy() raised: {''.join(traceback.format_exception(exc))}"
+    hooks.enter("sim")
+    if problem is not None:
+        print(f"route result kept; {problem}", file=sys.stderr)
+    return problem
 
 
 class _Loop:
@@ -305,10 +346,7 @@ class _Loop:
             controls = self._agent_step(snap, tick, rows, index)
             self.scenarios.update(snap)  # scripted actors move before the world ticks
             controls = self.scenarios.perturb(controls, index)  # ControlLoss noise on the CAVs' controls
-            try:
-                snap = world.tick(controls)
-            except ControlError as exc:
-                raise AgentCrash(str(exc)) from exc
+            snap = world.tick(controls)  # the agent's controls were checked: a ControlError here is ours
             self._trace(snap, tick + 1)
             criteria.update(snap, world.collisions)
             if self.recorder is not None:
@@ -339,6 +377,10 @@ class _Loop:
         self.hooks.enter("sim")
         if not isinstance(controls, Controls):
             raise AgentCrash(f"run_step returned {type(controls).__name__}, not Controls, at tick {tick}")
+        try:  # before the scenarios or the world touch them: what fails later is ours
+            controls = check_controls(controls, [self.world.cav_ids[i] for i in index])
+        except ControlError as exc:
+            raise AgentCrash(f"run_step returned unusable controls at tick {tick}: {exc}") from exc
         self.requested = self._check_partners(requested, index, tick)
         return controls
 

@@ -28,6 +28,7 @@ from cmudrive.bench.records import (
     INFRACTION_KEYS,
     STATUS_AGENT_CRASHED,
     STATUS_COMPLETED,
+    STATUS_INVALID_ROUTE,
     STATUS_PERFECT,
     STATUS_SIM_CRASHED,
     CavResult,
@@ -436,7 +437,15 @@ def summarize(routes: Sequence[RouteResult], expected_routes: int | None = None)
     - breakdowns over the routes present, ``{group: {"driving_score", "success_rate", "num_routes"}}``:
       ``by_scenario_type``, ``by_ability``, ``by_weather``, ``by_num_cavs`` (keys are strings, as in
       the JSON file: "2", "16").
+
+    Routes recorded "Failed - Invalid route" (``eval --skip-invalid``: they could not run at all) are
+    counted in ``num_invalid`` and left out of everything else: they neither count 0 in DS / SR / RC
+    (R shrinks by them) nor appear in ``num_routes`` or the breakdowns; the agent was never tested there.
     """
+    num_invalid = sum(r.status == STATUS_INVALID_ROUTE for r in routes)
+    if num_invalid:
+        routes = [r for r in routes if r.status != STATUS_INVALID_ROUTE]
+        expected_routes = expected_routes - num_invalid if expected_routes is not None else None
     ids = [r.route_id for r in routes]
     if len(set(ids)) != len(ids):
         dup = sorted({i for i in ids if ids.count(i) > 1})
@@ -458,6 +467,7 @@ def summarize(routes: Sequence[RouteResult], expected_routes: int | None = None)
         "num_expected": expected_routes,
         "num_missing": (expected_routes - len(routes)) if expected_routes is not None else 0,
         "num_crashed": sum(is_crashed(r) for r in routes),
+        "num_invalid": num_invalid,
         "efficiency": _mean_or_none(route_efficiency(r) for r in routes),
         "comfortness": 100.0 * comfort if comfort is not None else None,
         "multi_ability": multi_ability(routes),

@@ -38,6 +38,9 @@ STATUS_TIMEOUT = "Failed - Agent timed out"
 STATUS_TICK_CAP = "Failed - TickRuntime"
 STATUS_AGENT_CRASHED = "Failed - Agent crashed"
 STATUS_SIM_CRASHED = "Failed - Simulation crashed"
+# the route cannot run (unknown town, unplannable waypoints, a bad scenario parameter; found before the run
+# starts, ``cmudrive eval --skip-invalid``): not scored, left out of DS / SR / RC and counted apart
+STATUS_INVALID_ROUTE = "Failed - Invalid route"
 
 
 @dataclass
@@ -96,6 +99,8 @@ class RouteResult:
     ticks: int = 0  # ticks simulated
     wall_time: float = 0.0  # [s]
     error: str | None = None  # traceback text when the agent or the simulation crashed
+    # the agent's destroy() raised or overran after the route's ticks: the scores and statuses stand
+    cleanup_error: str | None = None
     # False while the route's scenario behaviour is not simulated yet (the scenario engine has not landed:
     # the route is scored under its type, but no scenario actor ran); None for a route without scenario
     scenario_simulated: bool | None = None

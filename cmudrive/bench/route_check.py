@@ -3,10 +3,15 @@
 Every route is read (the reader's rules: ids, CAV count and ids, ASCII numbers, coordinate and seed
 ranges, weather, scenario types), its town looked up (beside the file, ``--town-dir``, committed towns),
 and every CAV's waypoints planned into its dense route under the evaluator's bounds (10 m to 20 km, no
-loops from back-and-forth waypoints). Scenario trigger points must lie on CAV 0's route, and every
+loops from back-and-forth waypoints). Scenario trigger points must lie within ``TRIGGER_TOLERANCE``
+(the scenarios' activation distance, the one number the evaluator uses too) of CAV 0's route, and every
 scenario must place on the map as the evaluator builds it (parameters parsed and in range, every actor's
 place found: ``place_scenarios``; the scenario classes need no running world for that). One bad route
 does not hide the others: each gets its own line.
+
+``cmudrive eval`` runs the same checks on every route before the first one starts (:func:`route_problems`,
+``runner.run_evaluation``): a map is loaded once per town and dropped after that town's routes, so the
+check costs a map load per town (from the map cache) and a route planning per route.
 """
 
 from __future__ import annotations
@@ -18,10 +23,8 @@ from typing import Any
 
 import numpy as np
 
-from cmudrive.bench.routes import RouteSpec, read_routes
+from cmudrive.bench.routes import TRIGGER_TOLERANCE, RouteSpec, read_routes
 from cmudrive.maps import MapError, RoadMap, Route, RouteError, load_map
-
-TRIGGER_TOLERANCE = 5.0  # [m] a scenario's trigger point may lie this far from CAV 0's dense route
 
 
 @dataclass(frozen=True)
@@ -47,7 +50,7 @@ def check_route(spec: RouteSpec, maps: dict[Path, RoadMap]) -> RouteCheck:
             return RouteCheck(
                 spec.id,
                 f"route {spec.id!r}, scenario {scenario.name!r}: trigger point is {gap:.1f} m from CAV 0's "
-                f"route (at most {TRIGGER_TOLERANCE:.0f} m)",
+                f"route (at most {TRIGGER_TOLERANCE:g} m)",
                 len(spec.cavs),
             )
     problem = place_scenarios(spec, maps[path], routes)
@@ -82,6 +85,25 @@ def build_placed(spec: RouteSpec, road_map: RoadMap, routes: list[Route]) -> lis
     return [REGISTRY[sc.type](sc, ctx) for sc in spec.scenarios if sc.type in REGISTRY]
 
 
+def route_problems(specs: Sequence[RouteSpec]) -> dict[str, str]:
+    """Route id -> why it cannot run, for every route of ``specs`` that cannot (``check_route``'s rules);
+    the routes are taken town by town, each town's map dropped after its routes (bounded memory)."""
+    problems: dict[str, str] = {}
+    maps: dict[Path, RoadMap] = {}
+    town = None
+    for spec in sorted(specs, key=lambda s: (s.town, s.town_dirs)):
+        if (spec.town, spec.town_dirs) != town:
+            maps.clear()
+            town = (spec.town, spec.town_dirs)
+        try:
+            problem = check_route(spec, maps).problem
+        except Exception as exc:  # a file no reader foresaw: the route cannot run, the run goes on checking
+            problem = f"cannot be checked: {type(exc).__name__}: {exc}"
+        if problem is not None:
+            problems[spec.id] = problem if spec.id in problem else f"route {spec.id}: {problem}"
+    return problems
+
+
 def check_route_file(path: str | Path, town_dirs: Sequence[str] = ()) -> list[RouteCheck]:
     """One :class:`RouteCheck` per route of the file, in file order (unreadable routes included)."""
     specs, invalid = read_routes(path, strict=False)
@@ -92,4 +114,12 @@ def check_route_file(path: str | Path, town_dirs: Sequence[str] = ()) -> list[Ro
     return out
 
 
-__all__ = ["RouteCheck", "build_placed", "check_route", "check_route_file", "place_scenarios"]
+__all__ = [
+    "TRIGGER_TOLERANCE",
+    "RouteCheck",
+    "build_placed",
+    "check_route",
+    "check_route_file",
+    "place_scenarios",
+    "route_problems",
+]

@@ -57,6 +57,10 @@ MIN_ROUTE_LENGTH = 10.0  # [m] a CAV route shorter than this cannot be driven an
 MAX_ROUTE_LENGTH = 20_000.0  # [m] a CAV route (Bench2Drive's longest is ~2 km; 4000 ticks ~ 5 km)
 DETOUR_FACTOR = 3.0  # a dense route longer than this x its waypoints' polyline + DETOUR_SLACK loops
 DETOUR_SLACK = 500.0  # [m]
+# [m] a scenario's trigger point must lie this close to CAV 0's dense route: the route point that close to
+# it activates the scenario (ScenarioConfig.activation_distance), so a farther trigger never fires.
+# ``routes check`` and ``eval`` both use it.
+TRIGGER_TOLERANCE = 2.0
 
 # numbers as route files write them: ASCII decimal only (str.isdigit and float accept "²", "١٢", "1_000")
 _INT = re.compile(r"[0-9]+", re.ASCII)

@@ -47,10 +47,11 @@ from typing import Any, Protocol
 
 from cmudrive.agents.base import Agent, AgentSetupError, agent_factory, load_agent_class
 from cmudrive.bench.compile_clock import COMPILE_PHASE
-from cmudrive.bench.evaluator import AgentCrash, EvalConfig, RouteHooks, evaluate_route
+from cmudrive.bench.evaluator import AgentCrash, EvalConfig, RouteHooks, RouteInputError, evaluate_route
 from cmudrive.bench.metrics import route_result, route_status, summarize
 from cmudrive.bench.records import (
     STATUS_AGENT_CRASHED,
+    STATUS_INVALID_ROUTE,
     STATUS_RUNNING,
     STATUS_SIM_CRASHED,
     RouteResult,
@@ -59,18 +60,25 @@ from cmudrive.bench.records import (
 from cmudrive.bench.routes import RouteSpec
 
 CRASHED = (STATUS_AGENT_CRASHED, STATUS_SIM_CRASHED)
+RERUN = (*CRASHED, STATUS_INVALID_ROUTE)  # what --resume runs again (an invalid route is checked again)
 ROUTES_DIR = "routes"
 PROGRESS_EVERY = 20  # ticks between progress messages (and partial scores) from a worker
 WATCHDOG_GRACE = 5.0  # [s] added to the agent's time limits before its worker is killed
 SIM_SILENCE = 300.0  # [s] our own code silent this long (no tick, no phase change) counts as hung
 OMP_SPIN_COUNT = 200_000  # spins of an idle libgomp thread before it sleeps (~0.1-1 ms; libgomp's own
 # default is 300,000 when no wait policy is set, and without end under OMP_WAIT_POLICY=ACTIVE)
-# what a worker is running, as stored in its shared phase slot; "compile": numba compiles or loads a kernel
-PHASES = ("sim", "setup", "agent", COMPILE_PHASE)
+# what a worker is running, as stored in its shared phase slot; "compile": numba compiles or loads a
+# kernel; "cleanup": the agent's destroy()
+PHASES = ("sim", "setup", "agent", COMPILE_PHASE, "cleanup")
 
 
 class OutputFolderError(ValueError):
     """The output folder holds records of an earlier run and this run is not a resume."""
+
+
+class InvalidRoutesError(ValueError):
+    """Routes of the run cannot run (bad town, unplannable waypoints, scenario parameters); the message
+    lists every one with its problem."""
 
 
 class RouteJob(Protocol):
@@ -128,9 +136,12 @@ def run_task(task: RouteTask, progress: Any = None, hooks: RouteHooks | None = N
 
 
 def crashed_record(spec: RouteSpec, exc: BaseException) -> RouteResult:
-    """The record of a route that could not run: the agent's fault (it cannot be set up, or crashed)
-    or anything else (bad route input, a dead worker process)."""
-    status = STATUS_AGENT_CRASHED if isinstance(exc, AgentSetupError | AgentCrash) else STATUS_SIM_CRASHED
+    """The record of a route that could not run: the agent's fault (it cannot be set up, or crashed),
+    the route's (bad route input) or anything else (a dead worker process)."""
+    if isinstance(exc, AgentSetupError | AgentCrash):
+        status = STATUS_AGENT_CRASHED
+    else:
+        status = STATUS_INVALID_ROUTE if isinstance(exc, RouteInputError) else STATUS_SIM_CRASHED
     result = route_result(
         spec.id,
         spec.town,
@@ -259,8 +270,10 @@ class _Running:
     def hung(self) -> str | None:
         """Why the worker counts as hung now, or None."""
         cfg = self.task.config
-        limit = {"setup": cfg.setup_timeout + WATCHDOG_GRACE, "agent": cfg.step_timeout + WATCHDOG_GRACE}.get(
-            self.phase(), SIM_SILENCE
+        agent_step = cfg.step_timeout + WATCHDOG_GRACE
+        limit = {"setup": cfg.setup_timeout + WATCHDOG_GRACE, "agent": agent_step, "cleanup": agent_step}.get(
+            self.phase(),
+            SIM_SILENCE,  # our code: the simulation and numba's compiler
         )
         silent = time.monotonic() - self.beat[0]
         if silent <= limit:
@@ -270,12 +283,15 @@ class _Running:
             "setup": "the agent's setup",
             "agent": "run_step",
             COMPILE_PHASE: "numba's compiler",
+            "cleanup": "the agent's destroy()",
         }[self.phase()]
         return f"{what} made no progress for {silent:.0f} s (limit {limit:.0f} s): worker killed"
 
     def lost(self, verdict: str | None) -> RouteResult:
-        """The record of a route whose worker died (``verdict`` None) or was killed as hung."""
-        agent_fault = self.phase() in ("setup", "agent")
+        """The record of a route whose worker died (``verdict`` None) or was killed as hung. In the
+        agent's ``destroy()`` the last scores sent are the route's final record: it stands, the problem
+        in ``cleanup_error``."""
+        agent_fault = self.phase() in ("setup", "agent", "cleanup")
         status = STATUS_AGENT_CRASHED if agent_fault else STATUS_SIM_CRASHED
         why = verdict or f"worker process died (exit code {self.proc.exitcode})"
         where = {
@@ -283,6 +299,10 @@ class _Running:
             COMPILE_PHASE: "numba compiled or loaded a kernel (our code)",
         }.get(self.phase(), "the agent")
         message = f"route {self.task.spec.id}: {why} while {where} ran"
+        if self.phase() == "cleanup" and self.partial is not None:
+            record = RouteResult.from_json(self.partial)
+            record.cleanup_error = message
+            return record
         if self.partial is None:
             record = crashed_record(self.task.spec, RuntimeError(message))
             record.status = status
@@ -393,8 +413,9 @@ def record_path(out: Path, route_id: str) -> Path:
 
 
 def finished_route_ids(out: Path, route_ids: list[str]) -> set[str]:
-    """Routes of ``route_ids`` with a record that did not crash (what --resume skips)."""
-    return {rid for rid, record in _records(out, route_ids).items() if record.status not in CRASHED}
+    """Routes of ``route_ids`` with a record that did not crash and is not invalid (what --resume
+    skips)."""
+    return {rid for rid, record in _records(out, route_ids).items() if record.status not in RERUN}
 
 
 def _records(out: Path, route_ids: list[str]) -> dict[str, RouteResult]:
@@ -420,6 +441,31 @@ def merge_results(out: Path, order: list[str], expected: int | None = None) -> d
     return merged
 
 
+def check_agent(cls: type[Agent], options: dict[str, Any]) -> None:
+    """The agent can run with these options: its constructor takes them, its observations declaration
+    is valid, and its own ``check_options`` (a checkpoint that loads) passes; AgentSetupError else."""
+    agent_factory(cls, options)
+    try:
+        cls.check_options(options)
+    except Exception as exc:
+        raise AgentSetupError(f"agent {cls.__name__} cannot run: {exc}") from exc
+
+
+def _invalid_routes(routes: Sequence[RouteSpec], skip_invalid: bool) -> dict[str, str]:
+    """Route id -> problem of the routes that cannot run; InvalidRoutesError listing them all unless
+    ``skip_invalid``."""
+    from cmudrive.bench.route_check import route_problems
+
+    problems = route_problems(routes)
+    if problems and not skip_invalid:
+        lines = "\n".join(f"  {problems[spec.id]}" for spec in routes if spec.id in problems)
+        raise InvalidRoutesError(
+            f"{len(problems)} of {len(routes)} routes cannot run (fix them, or pass --skip-invalid to "
+            f"record them as {STATUS_INVALID_ROUTE!r} and run the others):\n{lines}"
+        )
+    return problems
+
+
 def run_evaluation(
     routes: list[RouteSpec],
     agent: str | type[Agent],
@@ -430,13 +476,18 @@ def run_evaluation(
     on_result: Callable[[RouteResult], None] | None = None,
     on_progress: ProgressCallback | None = None,
     max_memory: float | None = None,
+    skip_invalid: bool = False,
 ) -> dict[str, Any]:
     """Evaluate ``routes`` with ``agent`` and return the merged results (also in OUT/results.json).
 
+    Before any route starts, the agent (class, options: ``Agent.check_options``, observations) and every
+    route (``route_check.route_problems``) are checked: an agent that cannot run raises
+    :class:`AgentSetupError`; invalid routes raise :class:`InvalidRoutesError` listing each, or, with
+    ``skip_invalid``, get a "Failed - Invalid route" record and do not run (the summary counts them apart).
     Without ``resume``, ``out`` must not hold route records yet (:class:`OutputFolderError`)."""
     agent_spec = agent if isinstance(agent, str) else f"{agent.__module__}:{agent.__qualname__}"
     config = config or EvalConfig()
-    agent_factory(load_agent_class(agent_spec), config.agent_options)  # fail fast, before any worker starts
+    check_agent(load_agent_class(agent_spec), config.agent_options)  # fail fast, before any worker starts
     check_routes(routes)
     ids = [spec.id for spec in routes]
     old = sorted((out / ROUTES_DIR).glob("*.json")) if (out / ROUTES_DIR).is_dir() else []
@@ -447,8 +498,17 @@ def run_evaluation(
         )
     if max_memory is not None and not max_memory > 0.0:
         raise ValueError(f"max_memory must be a positive number of GiB, got {max_memory}")
+    invalid = _invalid_routes(routes, skip_invalid)  # every route checked before the first one runs
     out.mkdir(parents=True, exist_ok=True)
     skip = finished_route_ids(out, ids) if resume else set()
+    for spec in routes:
+        if spec.id in invalid:
+            record = crashed_record(spec, RouteInputError(invalid[spec.id]))
+            record.error = invalid[spec.id]  # the problem, no traceback: nothing ran
+            write_json_atomic(record_path(out, spec.id), record.to_json())
+            if on_result is not None:
+                on_result(record)
+    skip |= set(invalid)
     tasks = [RouteTask(spec, agent_spec, config, max_memory) for spec in routes if spec.id not in skip]
     for result in executor.run(tasks, on_progress):
         write_json_atomic(record_path(out, result.route_id), result.to_json())
@@ -460,11 +520,13 @@ def run_evaluation(
 
 __all__ = [
     "Executor",
+    "InvalidRoutesError",
     "LocalExecutor",
     "OutputFolderError",
     "RayExecutor",
     "RouteJob",
     "RouteTask",
+    "check_agent",
     "check_routes",
     "crashed_record",
     "finished_route_ids",

@@ -90,6 +90,41 @@ def backbone_config(config: ModelConfig, tokenizer: PreTrainedTokenizerBase) -> 
     )
 
 
+def size_mismatch(config: ModelConfig, backbone: InternVLConfig) -> str | None:
+    """Where ``config``'s vision/text sizes differ from the backbone config the weights were saved with
+    (``vision.hidden_size is 384, the backbone's 96``), or None. A config with ``pretrained_path`` takes
+    its sizes from the backbone and has none to differ."""
+    if config.vision is None or config.text is None:
+        return None
+    v, t = config.vision, config.text
+    bv = cast(InternVLVisionConfig, backbone.vision_config)
+    bt = cast(Qwen2Config, backbone.text_config)
+
+    def side(value: Any) -> int:  # transformers keeps image/patch sizes as [h, w]
+        return int(value[0]) if isinstance(value, list | tuple) else int(value)
+
+    pairs = {
+        "vision.hidden_size": (v.hidden_size, bv.hidden_size),
+        "vision.num_layers": (v.num_layers, bv.num_hidden_layers),
+        "vision.num_heads": (v.num_heads, bv.num_attention_heads),
+        "vision.intermediate_size": (v.intermediate_size, bv.intermediate_size),
+        "vision.image_size": (v.image_size, side(bv.image_size)),
+        "vision.patch_size": (v.patch_size, side(bv.patch_size)),
+        "text.hidden_size": (t.hidden_size, bt.hidden_size),
+        "text.num_layers": (t.num_layers, bt.num_hidden_layers),
+        "text.num_heads": (t.num_heads, bt.num_attention_heads),
+        "text.num_kv_heads": (t.num_kv_heads, bt.num_key_value_heads),
+        "text.intermediate_size": (t.intermediate_size, bt.intermediate_size),
+        "text.max_position_embeddings": (t.max_position_embeddings, bt.max_position_embeddings),
+    }
+    wrong = [
+        f"{name} is {ours}, the backbone's {theirs}"
+        for name, (ours, theirs) in pairs.items()
+        if ours != theirs
+    ]
+    return "; ".join(wrong) or None
+
+
 def token_id(tokenizer: PreTrainedTokenizerBase, token: str) -> int:
     return int(tokenizer.get_vocab()[token])
 
@@ -437,7 +472,14 @@ class V2VVLA(nn.Module):
         if meta.get("format_version") != FORMAT_VERSION:
             raise ValueError(f"{src}: format_version {meta.get('format_version')}, expected {FORMAT_VERSION}")
         config = ModelConfig.from_dict(meta["config"])
-        backbone = InternVLForConditionalGeneration(InternVLConfig.from_pretrained(str(src / BACKBONE_DIR)))
+        backbone_cfg = InternVLConfig.from_pretrained(str(src / BACKBONE_DIR))
+        mismatch = size_mismatch(config, backbone_cfg)
+        if mismatch:
+            raise ValueError(
+                f"{src / CONFIG_FILE} does not describe the weights in {src}: {mismatch} (a config from "
+                "another model size; save the checkpoint again with save_pretrained)"
+            )
+        backbone = InternVLForConditionalGeneration(backbone_cfg)
         backbone.set_attn_implementation(config.attn_implementation)
         model = cls(config, backbone, load_tokenizer(src / TOKENIZER_DIR))
         load_model(model, str(src / WEIGHTS_FILE), strict=True, device=str(device))

@@ -15,6 +15,7 @@ from cmudrive.sim.dynamics import (
     ControlError,
     Controls,
     VehicleParams,
+    check_controls,
     step_bicycle,
     validate_controls,
 )
@@ -43,6 +44,7 @@ __all__ = [
     "World",
     "WorldConfig",
     "actor_type",
+    "check_controls",
     "detect_collisions",
     "get_weather",
     "link_states",

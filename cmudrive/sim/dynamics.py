@@ -9,10 +9,13 @@ rear-axle geometry) is the standard choice at urban speeds, and cheap enough to 
 Controls follow CARLA's ``VehicleControl`` convention: ``steer`` in [-1, 1] with **+1 = full right**,
 ``throttle`` and ``brake`` in [0, 1]. There is no reverse gear: speed never drops below 0.
 
-Policy for bad controls (``validate_controls``): any NaN or infinite value raises :class:`ControlError`
-naming the CAV and the control (the evaluator records the route as "Agent crashed"); finite values
-outside their range are clipped and reported per CAV in ``ControlCheck.clipped`` so that runs can log
-them. Nothing non-finite ever reaches the state.
+Policy for bad controls: a control that is not one number per CAV (strings, objects, ragged lists,
+the wrong shape) or holds NaN or infinity raises :class:`ControlError` naming the control and, for a bad
+value, the CAV (``check_controls``; the evaluator calls it on what ``run_step`` returns, before anything
+of ours touches the controls, and records the route as "Agent crashed"); finite values outside their
+range are clipped and reported per CAV in ``ControlCheck.clipped`` so that runs can log them
+(``validate_controls``, the world's step; CARLA's ``VehicleControl`` clamps too). Nothing non-finite
+ever reaches the state.
 """
 
 from __future__ import annotations
@@ -82,13 +85,51 @@ _CONTROL_LOW = (-1.0, 0.0, 0.0)  # lower limits, in _CONTROL_NAMES order
 _CONTROL_HIGH = (1.0, 1.0, 1.0)
 
 
-def validate_controls(controls: Controls, cav_ids: list[str] | np.ndarray) -> ControlCheck:
-    """Reject non-finite controls (naming the CAV) and clip out-of-range ones (reported)."""
+_NUMERIC_KINDS = "biuf"  # numpy dtype kinds a control may be made of: bool, integers, floats
+
+
+def _control_values(controls: Controls, cav_ids: list[str] | np.ndarray) -> list[np.ndarray]:
+    """The three controls as float64 arrays, one value per CAV of ``cav_ids``; ControlError naming the
+    control and the CAVs when one is not that many numbers (strings, objects, a ragged list, a shape)."""
     n = len(cav_ids)
-    values = [np.asarray(getattr(controls, name), np.float64) for name in _CONTROL_NAMES]
-    for name, value in zip(_CONTROL_NAMES, values, strict=True):
+    cavs = ", ".join(str(c) for c in cav_ids[:4]) + (", ..." if n > 4 else "")
+    values = []
+    for name in _CONTROL_NAMES:
+        raw = getattr(controls, name)
+        try:
+            value = np.asarray(raw)
+        except (ValueError, TypeError) as exc:  # ragged nested lists and the like
+            raise ControlError(f"{name} is not an array of numbers ({exc}) (CAVs {cavs})") from exc
+        if value.dtype.kind not in _NUMERIC_KINDS:
+            shown = repr(raw) if len(repr(raw)) <= 60 else repr(raw)[:57] + "..."
+            raise ControlError(
+                f"{name} is {shown} of dtype {value.dtype}: controls must be numbers (CAVs {cavs})"
+            )
         if value.shape != (n,):
-            raise ControlError(f"{name} has shape {value.shape}, expected ({n},): one value per active CAV")
+            raise ControlError(
+                f"{name} has shape {value.shape}, expected ({n},): one value per active CAV ({cavs})"
+            )
+        values.append(value.astype(np.float64, copy=False))
+    return values
+
+
+def check_controls(controls: Controls, cav_ids: list[str] | np.ndarray) -> Controls:
+    """The controls as float64 arrays, one value per CAV of ``cav_ids``, or ControlError naming the
+    control and the CAV: not numbers, the wrong shape, NaN or infinite. Out-of-range values pass (the
+    world's step clips and reports them)."""
+    values = _control_values(controls, cav_ids)
+    for name, value in zip(_CONTROL_NAMES, values, strict=True):
+        bad = np.flatnonzero(~np.isfinite(value))
+        if len(bad):
+            i = int(bad[0])
+            raise ControlError(f"CAV {cav_ids[i]}: {name} is {value[i]} (controls must be finite)")
+    return Controls(values[0], values[1], values[2])
+
+
+def validate_controls(controls: Controls, cav_ids: list[str] | np.ndarray) -> ControlCheck:
+    """Reject controls that are not finite numbers (naming the CAV) and clip out-of-range ones
+    (reported)."""
+    values = _control_values(controls, cav_ids)
     fixed, clipped, finite = _clip_controls(*values)  # one compiled loop: ~1 us instead of ~8 numpy calls
     if not finite:
         for name, value in zip(_CONTROL_NAMES, values, strict=True):

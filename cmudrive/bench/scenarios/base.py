@@ -29,7 +29,7 @@ from typing import ClassVar
 import numpy as np
 
 from cmudrive.bench.criteria import RouteCriteria
-from cmudrive.bench.routes import ScenarioSpec
+from cmudrive.bench.routes import TRIGGER_TOLERANCE, ScenarioSpec
 from cmudrive.bench.scenarios.params import Param, ScenarioError, parse_params
 from cmudrive.bench.scenarios.placement import LanePoint, heading, point_xy, walk
 from cmudrive.bench.scenarios.plan import PlanItem, point
@@ -47,7 +47,8 @@ class ScenarioConfig:
     """Engine constants (``reference/SCENARIOS.md``, "Scenario life cycle")."""
 
     timeout: float = 240.0  # [s] ST240: the scenario's own timeout from activation
-    activation_distance: float = 2.0  # [m] CAV 0's matched route point this close to T activates it
+    # [m] CAV 0's matched route point this close to T activates it (the route file's trigger tolerance)
+    activation_distance: float = TRIGGER_TOLERANCE
     instantiation_distance: float = 500.0  # [m] along CAV 0's route before T: present actors appear
     charge_distance: float = 2.0  # [m] a route this close to T makes its CAV a charged one
 
