@@ -42,6 +42,7 @@ from typing import Literal, overload
 
 import numpy as np
 
+from cmudrive.bench.records import route_id_problem
 from cmudrive.bench.scenario_types import SCENARIO_TYPES
 from cmudrive.maps import MapError, RoadMap, Route, RouteError, densify
 from cmudrive.maps.cache import resolve_map_path
@@ -65,7 +66,6 @@ DETOUR_SLACK = 500.0  # [m]
 MAX_FILE_BYTES = 16 * 2**20  # [bytes] a route file (Bench2Drive's and Leaderboard 2.0's are ~1-3 MB)
 MAX_WAYPOINTS = 2000  # [-] per CAV: a 20 km route (MAX_ROUTE_LENGTH) with a keypoint every 10 m
 MAX_FILE_WAYPOINTS = 100_000  # [-] <position>/<waypoint> elements in a file (~30 s of planning)
-MAX_ROUTE_ID_CHARS = 200  # [-] a route id: printable characters only (no newline, tab or control)
 # CAV starts: two CAVs whose dense routes start on the same lane less than a CAV length apart, or whose
 # start points are closer than a CAV width whatever their lanes, would spawn overlapping (a collision at
 # tick 0, blamed on the agent); such a route is refused. Generated routes keep 15 m (route_gen).
@@ -297,27 +297,6 @@ def start_conflicts(routes: Sequence[Route]) -> list[tuple[int, int, float]]:
     along = np.abs(s[i] - s[j])
     bad = ((lane[i] == lane[j]) & (along < MIN_START_SPACING)) | (dist < MIN_START_DISTANCE)
     return [(int(a), int(b), float(d)) for a, b, d in zip(i[bad], j[bad], dist[bad], strict=True)]
-
-
-def route_id_problem(route_id: object) -> str | None:
-    """Why ``route_id`` cannot be a route id, or None: ids are 1 to ``MAX_ROUTE_ID_CHARS`` printable
-    characters (no newline, tab or other control character), as they go into messages, file names and
-    CSV rows. The committed sets use ``<Type>_<k>`` ids up to 49 characters; Bench2Drive's are numbers."""
-    if not isinstance(route_id, str) or not route_id:
-        return f"route id must be a non-empty string, got {_shorten(route_id)}"
-    if len(route_id) > MAX_ROUTE_ID_CHARS:
-        return (
-            f"route id {_shorten(route_id)} is {len(route_id)} characters long (at most {MAX_ROUTE_ID_CHARS})"
-        )
-    bad = sorted({c for c in route_id if not c.isprintable()})
-    if bad:
-        return f"route id {_shorten(route_id)} holds unprintable characters {bad} (printable ones only)"
-    return None
-
-
-def _shorten(value: object, chars: int = 40) -> str:
-    text = repr(value)
-    return text if len(text) <= chars else f"{text[:chars]}..."
 
 
 def _suggest(scenario_type: str) -> str:
