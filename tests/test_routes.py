@@ -412,7 +412,7 @@ def test_route_ids_are_printable_and_bounded(tmp_path: Path) -> None:
     routes, errors = read_routes(path, strict=False)
     assert [r.id for r in routes] == ["Accident_0 (b)"]
     assert [e[0] for e in errors] == ["#1", "#2"]  # the bad id is not repeated as a label
-    assert "is 5000 characters long (at most 200)" in errors[0][1] and len(errors[0][1]) < 300
+    assert "is 5000 characters long (at most 255)" in errors[0][1] and len(errors[0][1]) < 300
     assert "unprintable characters ['\\n']" in errors[1][1]
     with pytest.raises(RouteSpecError, match="unprintable"):
         _spec("tab\tid")

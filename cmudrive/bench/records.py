@@ -164,7 +164,7 @@ def record_stem(route_id: str) -> str:
 
 
 # ------------------------------------------------------------------------------------- record validation
-MAX_ROUTE_ID_CHARS = 200  # [-] a route id: printable characters only (no newline, tab or control)
+MAX_ROUTE_ID_CHARS = 255  # [-] a route id (a file-name length): printable characters only, no control
 MAX_RECORD_CAVS = 16  # [-] CAVs of a route (routes.MAX_CAVS)
 SCORE_TOLERANCE = 1e-6  # [score points] DS = RC x IS and RC = mean of the CAVs' RC_i within this
 SUCCESS_TOLERANCE = 1e-9  # [score points] DS counts as 100 within this (metrics.SUCCESS_TOLERANCE)
