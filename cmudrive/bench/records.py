@@ -20,7 +20,7 @@ import hashlib
 import math
 import re
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import Any, TypeGuard
 
 # infraction keys, as in leaderboard results files, with their penalty factor (None: not a fixed factor)
 PENALTIES: dict[str, float | None] = {
@@ -193,7 +193,7 @@ def _short(value: object, chars: int = 40) -> str:
     return text if len(text) <= chars else f"{text[:chars]}..."
 
 
-def _finite(value: object) -> bool:
+def _finite(value: object) -> TypeGuard[float]:
     return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
 
 
