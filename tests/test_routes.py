@@ -443,3 +443,22 @@ def test_cavs_starting_on_one_spot_are_refused_naming_them(tmp_path: Path) -> No
     assert "CAVs 0 and 1 (3.0 m)" in str(checks["close"])
     assert "CAVs 0 and 1 (0.0 m), CAVs 0 and 2 (0.0 m)" in str(checks["stacked"])
     assert "and 115 more pairs" in str(checks["stacked"])
+
+
+def test_eval_reads_routes_under_the_same_bounds(tmp_path: Path) -> None:
+    """`cmudrive eval` reads its routes with read_routes: an oversized CAV and a bad id are skipped with
+    their reasons, and a file with nothing left is refused before any world starts."""
+    from typer.testing import CliRunner
+
+    from cmudrive.bench.routes import MAX_WAYPOINTS
+    from cmudrive.cli import app
+
+    pos = '<position x="166.21" y="-277.78" z="0"/>'
+    cavs = f'<cav id="0"><waypoints>{pos * (MAX_WAYPOINTS + 1)}</waypoints></cav>'
+    cavs += f'<cav id="1"><waypoints>{pos * 2}</waypoints></cav>'
+    path = _write(tmp_path, _route_xml("many", cavs=cavs), _route_xml("bad&#10;id"))
+    result = CliRunner().invoke(app, ["eval", "--routes", str(path), "--out", str(tmp_path / "out")])
+    text = " ".join(result.output.split())
+    assert result.exit_code == 1 and "no route to run (every route is invalid)" in text
+    assert f"skipping route many: {path}, route 'many': CAV 0: {MAX_WAYPOINTS + 1} waypoints" in text
+    assert "skipping route #2:" in text and "unprintable characters" in text
