@@ -165,6 +165,7 @@ def record_stem(route_id: str) -> str:
 
 # ------------------------------------------------------------------------------------- record validation
 MAX_ROUTE_ID_CHARS = 255  # [-] a route id (a file-name length): printable characters only, no control
+MAX_TEXT_CHARS = 4096  # [-] town (a name or a .net.xml path: PATH_MAX), weather, scenario type
 MAX_RECORD_CAVS = 16  # [-] CAVs of a route (routes.MAX_CAVS)
 SCORE_TOLERANCE = 1e-6  # [score points] DS = RC x IS and RC = mean of the CAVs' RC_i within this
 SUCCESS_TOLERANCE = 1e-9  # [score points] DS counts as 100 within this (metrics.SUCCESS_TOLERANCE)
@@ -257,8 +258,8 @@ def record_problems(r: RouteResult) -> list[str]:
         problems.append(id_problem)
     for name in ("town", "weather", "scenario_type"):
         value = getattr(r, name)
-        if not isinstance(value, str) or len(value) > MAX_ROUTE_ID_CHARS or not value.isprintable():
-            problems.append(f"{name} must be a string of at most {MAX_ROUTE_ID_CHARS} printable characters")
+        if not isinstance(value, str) or len(value) > MAX_TEXT_CHARS or not value.isprintable():
+            problems.append(f"{name} must be a string of at most {MAX_TEXT_CHARS} printable characters")
     _integer(r.num_cavs, "num_cavs", 1, MAX_RECORD_CAVS, problems)
     if isinstance(r.num_cavs, int) and len(r.cavs) > r.num_cavs:
         problems.append(f"{len(r.cavs)} CAV results for num_cavs {r.num_cavs}")
