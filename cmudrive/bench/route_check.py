@@ -7,6 +7,11 @@ loops from back-and-forth waypoints). Scenario trigger points must lie on CAV 0'
 scenario must place on the map as the evaluator builds it (parameters parsed and in range, every actor's
 place found: ``place_scenarios``; the scenario classes need no running world for that). One bad route
 does not hide the others: each gets its own line.
+
+The work is linear in the waypoints (one lane snap and one lane-graph search per waypoint, ~0.3 ms), and
+the reader bounds them (``routes.MAX_FILE_BYTES``, ``MAX_FILE_WAYPOINTS``, ``MAX_WAYPOINTS``), so a check
+answers in seconds; CAVs whose dense routes start on top of each other are refused by
+``RouteSpec.dense_routes`` (``routes.start_conflicts``), which the evaluator plans with too.
 """
 
 from __future__ import annotations
