@@ -143,6 +143,12 @@ def test_deeply_nested_results_are_an_error_not_a_recursion_error(tmp_path: Path
     path.write_text("[" * 100_000 + "]" * 100_000)
     with pytest.raises(ResultsError, match=r"results\.json: JSON nested too deeply"):
         load_results(path)
+    from cmudrive.bench.runner import finished_route_ids, record_path
+
+    record = record_path(tmp_path / "run", "r1")
+    record.parent.mkdir(parents=True)
+    record.write_text("[" * 100_000 + "]" * 100_000)
+    assert finished_route_ids(tmp_path / "run", ["r1"]) == set()  # --resume runs it again
 
 
 def test_text_from_records_is_written_inertly(tmp_path: Path) -> None:
