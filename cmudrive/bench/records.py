@@ -260,8 +260,9 @@ def record_problems(r: RouteResult) -> list[str]:
         value = getattr(r, name)
         if not isinstance(value, str) or len(value) > MAX_TEXT_CHARS or not value.isprintable():
             problems.append(f"{name} must be a string of at most {MAX_TEXT_CHARS} printable characters")
+    before = len(problems)
     _integer(r.num_cavs, "num_cavs", 1, MAX_RECORD_CAVS, problems)
-    if isinstance(r.num_cavs, int) and len(r.cavs) > r.num_cavs:
+    if len(problems) == before and len(r.cavs) > r.num_cavs:
         problems.append(f"{len(r.cavs)} CAV results for num_cavs {r.num_cavs}")
     if r.status not in STATUSES:
         problems.append(f"unknown status {_short(r.status)}")
