@@ -317,3 +317,86 @@ def test_a_town_without_traffic_lights_replays(tmp_path: Path) -> None:
     recorder.record(snap, None, np.array([0]))
     log = load_route_log(recorder.save(tmp_path / "r.npz"))
     assert log.tls_state(0).tolist() == [] and log.snapshot(0).ids.tolist() == ["cav0"]
+
+
+def _damaged(recorded: Recorded, path: Path, **changes: object) -> Path:
+    """The recorded log with some arrays replaced (a header dict is merged into the header)."""
+    import json
+
+    with np.load(recorded.path) as npz:
+        arrays = {k: npz[k] for k in npz.files}
+    for name, value in changes.items():
+        if name == "header":
+            arrays["header"] = np.array(json.dumps({**json.loads(str(arrays["header"])), **value}))  # type: ignore[dict-item]
+        elif name == "events":
+            arrays["events"] = np.array([json.dumps(e) for e in value], dtype=str)  # type: ignore[attr-defined]
+        else:
+            arrays[name] = value  # type: ignore[assignment]
+    np.savez_compressed(path, **arrays)  # type: ignore[arg-type]
+    return path
+
+
+GOOD_EVENT = {"tick": 3, "cav": 0, "key": "red_light", "x": 1.0, "y": 2.0, "message": "m"}
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"header": {"dt": 0}}, r"header dt must be a number of seconds in \(0, 10\], got 0"),
+        ({"header": {"dt": "fast"}}, "header dt must be a number of seconds"),
+        ({"events": [{k: v for k, v in GOOD_EVENT.items() if k != "tick"}]}, r"event 0 lacks \['tick'\]"),
+        (
+            {"events": [GOOD_EVENT, {**GOOD_EVENT, "tick": "5"}]},
+            "event 1: tick must be an integer in 0..99, got '5'",
+        ),
+        ({"events": [{**GOOD_EVENT, "cav": 99}]}, "event 0: cav must be an integer in 0..1, got 99"),
+        ({"events": [{**GOOD_EVENT, "x": float("nan")}]}, "event 0: x must be a finite number"),
+        ({"x": "nan"}, r"x is not finite in 1 rows \(first: row 7\)"),
+        ({"actor_kind": "kind"}, r"actor_kind holds unknown values \[42\]"),
+    ],
+)
+def test_a_log_the_replay_cannot_draw_is_refused_on_load(
+    recorded: Recorded, tmp_path: Path, change: dict[str, object], message: str
+) -> None:
+    """Issue 22: dt = 0, an event without a tick or with a string tick ended in tracebacks mid-replay;
+    NaN positions and events of CAV 99 were drawn as if they were data."""
+    with np.load(recorded.path) as npz:
+        if change.get("x") == "nan":
+            x = npz["x"].copy()
+            x[7] = np.nan
+            change = {"x": x}
+        elif change.get("actor_kind") == "kind":
+            kind = npz["actor_kind"].copy()
+            kind[0] = 42
+            change = {"actor_kind": kind}
+    path = _damaged(recorded, tmp_path / "bad.npz", **change)
+    with pytest.raises(RouteLogError, match=message) as err:
+        load_route_log(path)
+    assert str(path) in str(err.value)
+    with pytest.raises(RouteLogError, match=message):
+        replay(path, tmp_path / "bad.gif")
+
+
+def test_declared_sizes_are_checked_before_reading(
+    recorded: Recorded, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Issue 22: a 5.9 MB log asked numpy for 5.59 GiB. A member whose .npy header declares more data than
+    it holds, and a log whose members declare more than MAX_LOG_BYTES, are refused before np.load."""
+    from cmudrive.bench import recording
+
+    bomb = tmp_path / "bomb.npz"
+    with zipfile.ZipFile(bomb, "w", zipfile.ZIP_DEFLATED) as archive:
+        header = {"descr": "<f8", "fortran_order": False, "shape": (750_000_000,)}  # 6 GB of float64
+        with archive.open("x.npy", "w") as member:
+            np.lib.format.write_array_header_1_0(member, header)
+            member.write(bytes(64))
+
+    def no_load(*args: object, **kwargs: object) -> None:
+        raise AssertionError("np.load ran on a log whose sizes were not checked")
+
+    monkeypatch.setattr(recording.np, "load", no_load)
+    with pytest.raises(RouteLogError, match=r"bomb\.npz: member 'x\.npy' declares 6000000000 bytes"):
+        load_route_log(bomb)
+    monkeypatch.setattr(recording, "MAX_LOG_BYTES", 1000)
+    with pytest.raises(RouteLogError, match=r"mini_0\.npz declares 0\.\d+ GiB of data, more than the"):
+        load_route_log(recorded.path)

@@ -100,3 +100,71 @@ def test_malformed_records_name_the_file(tmp_path: Path):
         load_results(tmp_path / "empty")
     with pytest.raises(ResultsError, match="no such results file or folder"):
         load_results(tmp_path / "nowhere")
+
+
+def _one_route_file(tmp_path: Path, edit: dict[str, object], name: str = "results.json") -> Path:
+    record = ten_routes()[0].to_json()
+    record.update(edit)
+    path = tmp_path / name
+    path.write_text(json.dumps({"routes": [ten_routes()[1].to_json(), record]}))
+    return path
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        ({"driving_score": 150.0}, r"driving_score must be in \[0, 100\], got 150\.0"),
+        ({"route_completion": -500.0}, r"route_completion must be in \[0, 100\], got -500\.0"),
+        ({"driving_score": 34.0, "route_completion": 34.0}, r"success True with driving_score 34\.0"),
+        ({"driving_score": float("inf")}, "driving_score must be a finite number, got inf"),
+        ({"num_cavs": -3}, r"num_cavs must be an integer in \[1, 16\], got -3"),
+        ({"driving_score": "abc"}, "driving_score must be a finite number, got 'abc'"),
+        ({"driving_score": None}, "driving_score must be a finite number, got None"),
+        ({"status": "Winner"}, "unknown status 'Winner'"),
+        ({"route_completion": 50.0, "driving_score": 50.0, "success": False}, "not the mean / product"),
+    ],
+)
+def test_nonsense_records_are_refused_naming_file_record_and_field(
+    tmp_path: Path, edit: dict[str, object], message: str
+) -> None:
+    """Issue 22: DS 150 with success, RC -500, success at DS 34, DS inf, negative CAV counts and
+    non-numbers were summarised (DS 82.95, RC -242 %) or ended in a traceback."""
+    path = _one_route_file(tmp_path, edit)
+    with pytest.raises(
+        ResultsError, match=r"results\.json: record 1 is not a route result \(route 'route_00': "
+    ) as info:
+        write_report(path, tmp_path / "out")
+    assert info.match(message)
+    assert not (tmp_path / "out" / "summary.md").exists()
+
+
+def test_deeply_nested_results_are_an_error_not_a_recursion_error(tmp_path: Path) -> None:
+    path = tmp_path / "results.json"
+    path.write_text("[" * 100_000 + "]" * 100_000)
+    with pytest.raises(ResultsError, match=r"results\.json: JSON nested too deeply"):
+        load_results(path)
+    from cmudrive.bench.runner import finished_route_ids, record_path
+
+    record = record_path(tmp_path / "run", "r1")
+    record.parent.mkdir(parents=True)
+    record.write_text("[" * 100_000 + "]" * 100_000)
+    assert finished_route_ids(tmp_path / "run", ["r1"]) == set()  # --resume runs it again
+
+
+def test_text_from_records_is_written_inertly(tmp_path: Path) -> None:
+    """CSV cells that a spreadsheet runs as formulas get a leading quote; markdown cells are HTML-escaped;
+    a group name that looks like mathtext does not break the charts."""
+    routes = ten_routes()
+    routes[0].scenario_type = '=HYPERLINK("http://x")'
+    routes[1].weather = "<img src=x onerror=alert(1)>|"
+    routes[2].weather = "$\\frac{$"
+    routes[3].town = "@SUM(A1)"
+    write_report(routes, tmp_path / "out")
+    with (tmp_path / "out" / "routes.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert rows[0]["scenario_type"] == '\'=HYPERLINK("http://x")' and rows[3]["town"] == "'@SUM(A1)"
+    with (tmp_path / "out" / "summary.csv").open() as f:
+        groups = [r["group"] for r in csv.DictReader(f)]
+    assert '\'=HYPERLINK("http://x")' in groups and not any(g.startswith(("=", "@")) for g in groups)
+    md = (tmp_path / "out" / "summary.md").read_text()
+    assert "<img" not in md and "| &lt;img src=x onerror=alert(1)&gt;\\| | 1 |" in md

@@ -4,6 +4,7 @@ multi-CAV generation on the committed towns, and the committed smoke route file.
 from __future__ import annotations
 
 import pickle
+import time
 from pathlib import Path
 
 import numpy as np
@@ -369,3 +370,95 @@ def test_committed_smoke_routes_parse_and_densify() -> None:
         for cav in spec.cavs:
             route = densify(m, spec.map_waypoints(cav.id))
             assert 200.0 <= route.length <= 400.0, (spec.id, cav.id, route.length)
+
+
+# ------------------------------------------------------------------------------------------ input bounds
+def test_oversized_route_files_are_refused_before_planning(tmp_path: Path) -> None:
+    """A CAV with more waypoints than MAX_WAYPOINTS, a file with more than MAX_FILE_WAYPOINTS and a file
+    larger than MAX_FILE_BYTES are refused with the file (and route, CAV) named, in seconds: the 45 MB
+    file of issue 22 took minutes in planning."""
+    from cmudrive.bench import routes as routes_module
+    from cmudrive.bench.route_check import check_route_file
+
+    pos = '<position x="166.21" y="-277.78" z="0"/>'
+    many = _route_xml(
+        "many",
+        cavs='<cav id="0"><waypoints>' + pos * (routes_module.MAX_WAYPOINTS + 1) + "</waypoints></cav>"
+        '<cav id="1"><waypoints>' + pos * 2 + "</waypoints></cav>",
+    )
+    path = _write(tmp_path, many, _route_xml("good"))
+    t0 = time.monotonic()
+    checks = check_route_file(path)
+    assert time.monotonic() - t0 < 30.0
+    assert [c.route_id for c in checks] == ["good", "many"]
+    assert f"route 'many': CAV 0: {routes_module.MAX_WAYPOINTS + 1} waypoints, more than" in str(
+        checks[1].problem
+    )
+    per_route = routes_module.MAX_WAYPOINTS // 2
+    n_routes = routes_module.MAX_FILE_WAYPOINTS // (2 * per_route) + 1
+    cavs = "".join(f'<cav id="{i}"><waypoints>{pos * per_route}</waypoints></cav>' for i in range(2))
+    crowded = _write(tmp_path, *(_route_xml(f"r{k}", cavs=cavs) for k in range(n_routes)), name="c.xml")
+    with pytest.raises(RouteSpecError, match=rf"c\.xml: {2 * per_route * n_routes} waypoints, more than"):
+        read_routes(crowded, strict=False)
+    huge = tmp_path / "huge.xml"
+    huge.write_text("<routes><!--" + "x" * routes_module.MAX_FILE_BYTES + "-->" + _route_xml() + "</routes>")
+    with pytest.raises(RouteSpecError, match=r"huge\.xml: the file is 16\.0 MiB, larger than the 16 MiB"):
+        read_routes(huge, strict=False)
+
+
+def test_route_ids_are_printable_and_bounded(tmp_path: Path) -> None:
+    long_id, newline_id = "a" * 5000, "two&#10;lines"
+    path = _write(tmp_path, _route_xml(long_id), _route_xml(newline_id), _route_xml("Accident_0 (b)"))
+    routes, errors = read_routes(path, strict=False)
+    assert [r.id for r in routes] == ["Accident_0 (b)"]
+    assert [e[0] for e in errors] == ["#1", "#2"]  # the bad id is not repeated as a label
+    assert "is 5000 characters long (at most 255)" in errors[0][1] and len(errors[0][1]) < 300
+    assert "unprintable characters ['\\n']" in errors[1][1]
+    with pytest.raises(RouteSpecError, match="unprintable"):
+        _spec("tab\tid")
+    lb = tmp_path / "lb.xml"
+    lb.write_text(
+        '<routes><route id="x&#10;y" town="Town03"><waypoints><position x="1" y="2" z="0"/>'
+        '<position x="50" y="2" z="0"/></waypoints></route></routes>'
+    )
+    result = import_leaderboard_routes(lb)
+    assert result.routes == [] and "unprintable" in result.skipped[0][1]
+
+
+def test_cavs_starting_on_one_spot_are_refused_naming_them(tmp_path: Path) -> None:
+    """16 CAVs on one start spawn inside each other (issue 22: RC 19.6); `routes check` and the
+    evaluator's planning (``dense_routes``) refuse them and name the CAVs."""
+    from cmudrive.bench.route_check import check_route_file
+
+    stacked = _spec("stacked", n_cavs=16)
+    with pytest.raises(RouteError, match=r"route 'stacked' on 'downtown': CAVs 0 and 1 \(0\.0 m\), "):
+        stacked.dense_routes(load_map("downtown"))
+    behind = np.array(DOWNTOWN_WPS[1:])
+    near = np.array(DOWNTOWN_WPS) + np.array([3.0, 0.0, 0.0])  # 3 m ahead on the same lane
+    spaced = _spec("spaced", cavs=(CavSpec(0, np.array(DOWNTOWN_WPS)), CavSpec(1, behind)))
+    close = _spec("close", cavs=(CavSpec(0, np.array(DOWNTOWN_WPS)), CavSpec(1, near)))
+    write_routes([stacked, spaced, close], tmp_path / "r.xml")
+    checks = {c.route_id: c.problem for c in check_route_file(tmp_path / "r.xml")}
+    assert checks["spaced"] is None
+    assert "CAVs 0 and 1 (3.0 m)" in str(checks["close"])
+    assert "CAVs 0 and 1 (0.0 m), CAVs 0 and 2 (0.0 m)" in str(checks["stacked"])
+    assert "and 115 more pairs" in str(checks["stacked"])
+
+
+def test_eval_reads_routes_under_the_same_bounds(tmp_path: Path) -> None:
+    """`cmudrive eval` reads its routes with read_routes: an oversized CAV and a bad id are skipped with
+    their reasons, and a file with nothing left is refused before any world starts."""
+    from typer.testing import CliRunner
+
+    from cmudrive.bench.routes import MAX_WAYPOINTS
+    from cmudrive.cli import app
+
+    pos = '<position x="166.21" y="-277.78" z="0"/>'
+    cavs = f'<cav id="0"><waypoints>{pos * (MAX_WAYPOINTS + 1)}</waypoints></cav>'
+    cavs += f'<cav id="1"><waypoints>{pos * 2}</waypoints></cav>'
+    path = _write(tmp_path, _route_xml("many", cavs=cavs), _route_xml("bad&#10;id"))
+    result = CliRunner().invoke(app, ["eval", "--routes", str(path), "--out", str(tmp_path / "out")])
+    text = " ".join(result.output.split())
+    assert result.exit_code == 1 and "no route to run (every route is invalid)" in text
+    assert f"skipping route many: {path}, route 'many': CAV 0: {MAX_WAYPOINTS + 1} waypoints" in text
+    assert "skipping route #2:" in text and "unprintable characters" in text

@@ -238,3 +238,51 @@ def test_cli_trains_the_baseline(data: Path, tmp_path: Path) -> None:
     none = ["train", "--data", str(tmp_path / "none"), "--out", str(tmp_path / "x")]
     missing = CliRunner().invoke(app, none)
     assert missing.exit_code == 1 and "no .parquet shard" in " ".join(missing.output.split())
+
+
+# ---- corrupt inputs ---------------------------------------------------------------------------------
+def _flip_camera_byte(shard: Path) -> None:
+    """Flip one bit in the middle of the shard's camera image data (a page the statistics never read)."""
+    import pyarrow.parquet as pq
+
+    group = pq.read_metadata(shard).row_group(0)
+    camera = next(
+        group.column(i) for i in range(group.num_columns) if group.column(i).path_in_schema == "camera.bytes"
+    )
+    data = bytearray(shard.read_bytes())
+    data[camera.data_page_offset + camera.total_compressed_size // 2] ^= 0x04
+    shard.write_bytes(bytes(data))
+
+
+def test_a_bit_flipped_shard_is_named_by_data_stats_and_train(data: Path, tmp_path: Path) -> None:
+    """Issue 22: `data stats` counted a bit-flipped shard as good samples, and `train` failed on it with a
+    traceback that never named it."""
+    folder = tmp_path / "flipped"
+    shutil.copytree(data, folder)
+    bad = sorted(folder.glob("*.parquet"))[1]
+    _flip_camera_byte(bad)
+    stats = CliRunner().invoke(app, ["data", "stats", str(folder)])
+    assert stats.exit_code == 1 and f"{bad.name}:corruptshard" in "".join(stats.output.split())
+    run = CliRunner().invoke(
+        app, ["train", "--data", str(folder), "--out", str(tmp_path / "run"), "--max-steps", "1"]
+    )
+    assert run.exit_code == 1 and f"{bad.name}:corruptshard" in "".join(run.output.split())
+    assert "Traceback" not in run.output
+
+
+def test_resume_refuses_pickled_optimizer_state_with_a_message(data: Path, tmp_path: Path) -> None:
+    """A checkpoint whose optimizer state pickles an arbitrary object is refused by torch's safe loader;
+    `train --resume` says so, naming the checkpoint, instead of a traceback (and runs nothing from it)."""
+    from cmudrive.model.train import TrainState
+
+    out = tmp_path / "run"
+    train(config(data, out, max_steps=2, batch_size=2), progress=False)
+    checkpoint = out / "checkpoints" / "step_000002"
+    optimizer = (checkpoint / "optimizer.bin").read_bytes()
+    torch.save({"state": TrainState(step=2)}, checkpoint / "optimizer.bin")  # a class: needs full pickle
+    with pytest.raises(ValueError, match=r"step_000002: --resume refused this checkpoint: .*pickled objects"):
+        train(config(data, out, max_steps=2, batch_size=2), resume=True, progress=False)
+    (checkpoint / "optimizer.bin").write_bytes(optimizer)
+    (checkpoint / "state.json").write_text('{"step": "two"}')
+    with pytest.raises(ValueError, match=r"step_000002/state\.json: step, epoch and batch_in_epoch must be"):
+        train(config(data, out, max_steps=2, batch_size=2), resume=True, progress=False)

@@ -28,6 +28,7 @@ from cmudrive.bench.routes import (
     RouteSpecError,
     parse_xml,
     points_from_xml,
+    route_id_problem,
     scenario_from_xml,
 )
 from cmudrive.maps import MapError, RoadMap, RouteError, available_towns, load_map
@@ -98,9 +99,13 @@ def import_leaderboard_routes(
     maps: dict[str, RoadMap] = {}
     seen: set[str] = set()
     for k, elem in enumerate(root.findall("route"), start=1):
-        rid = elem.get("id") or f"#{k}"
+        raw_id = elem.get("id")
+        rid = raw_id if raw_id and route_id_problem(raw_id) is None else f"#{k}"
         town = elem.get("town") or ""
         try:
+            problem = route_id_problem(raw_id) if raw_id else None
+            if problem:
+                raise RouteSpecError(problem)
             if rid in seen:
                 raise RouteSpecError("duplicate route id")
             seen.add(rid)

@@ -15,6 +15,14 @@ world's own step number of each); event ticks use the same numbering. The contro
 the caller passes with its snapshot: the evaluator passes the controls applied in the world step that
 produced the snapshot.
 
+Loading trusts nothing in the file: the declared (uncompressed) sizes of the archive's members and the
+shapes in their ``.npy`` headers are checked against ``MAX_LOG_BYTES`` before any array is read (a 5.9 MB
+crafted log once asked for 5.59 GiB), and after reading, every field's shape and index, the header's
+``dt`` (finite, > 0), finite poses, extents and routes, known actor kinds and roles, ASCII light states and
+every event (a JSON object with an integer ``tick`` of the log and a ``cav`` of the route, finite
+``x``/``y``) are checked, so that a replay never starts on a log it cannot draw. Each problem is a
+``RouteLogError`` naming the file.
+
 Typical use::
 
     recorder = RouteRecorder(spec.id, spec.town, [r.xy for r in cav_routes])
@@ -29,6 +37,7 @@ Typical use::
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
 import tempfile
@@ -44,7 +53,7 @@ import numpy as np
 
 from cmudrive.bench.records import Infraction
 from cmudrive.sim.dynamics import Controls
-from cmudrive.sim.snapshot import Snapshot
+from cmudrive.sim.snapshot import ActorKind, Role, Snapshot
 
 if TYPE_CHECKING:
     pass
@@ -56,6 +65,10 @@ CONTROL_NAMES = ("steer", "throttle", "brake")
 EVENT_FIELDS = ("cav", "key", "x", "y", "message")  # required in every event
 _CAV_ID = re.compile(r"^cav(\d+)$")
 EVENT_SECONDS = 3.0  # [s] an event counts as active (a replay shows its marker) this long from its tick
+# [bytes] uncompressed size of a log, all members together: a 4000-tick route with 1000 actors at once is
+# ~120 MB (28 bytes per actor row), so this leaves ~9x room; larger declared sizes are refused unread
+MAX_LOG_BYTES = 2**30
+MAX_DT = 10.0  # [s] a tick longer than this is not a recording of ours
 
 # replay
 
@@ -452,6 +465,7 @@ def load_route_log(path: str | Path) -> RouteLog:
     if not path.is_file():
         raise RouteLogError(f"route log {path} does not exist")
     try:
+        _check_declared_sizes(path)
         loaded = np.load(path, allow_pickle=False)
         if not isinstance(loaded, np.lib.npyio.NpzFile):
             raise RouteLogError(f"route log {path} is a single array, not a route log (.npz)")
@@ -466,13 +480,42 @@ def load_route_log(path: str | Path) -> RouteLog:
             raise
         raise RouteLogError(f"route log {path} is corrupt or unreadable: {exc}") from exc
     _check_consistent(path, arrays)
-    return RouteLog(
-        path=path,
-        route_id=str(header["route_id"]),
-        town=str(header["town"]),
-        dt=float(header["dt"]),
-        arrays=arrays,
+    _check_values(path, arrays)
+    log = RouteLog(
+        path=path, route_id=str(header["route_id"]), town=str(header["town"]), dt=header["dt"], arrays=arrays
     )
+    _check_events(log)
+    return log
+
+
+def _check_declared_sizes(path: Path) -> None:
+    """Refuse a log whose members declare more than ``MAX_LOG_BYTES`` uncompressed, or whose ``.npy``
+    headers declare more data than their member holds, before numpy allocates anything."""
+    if not zipfile.is_zipfile(path):
+        raise RouteLogError(f"route log {path} is not a route log (.npz, a zip archive of arrays)")
+    with zipfile.ZipFile(path) as archive:
+        infos = archive.infolist()
+        total = sum(info.file_size for info in infos)
+        if total > MAX_LOG_BYTES:
+            raise RouteLogError(
+                f"route log {path} declares {total / 2**30:.2f} GiB of data, more than the "
+                f"{MAX_LOG_BYTES / 2**30:.0f} GiB a route log may hold"
+            )
+        for info in infos:
+            with archive.open(info) as member:
+                version = np.lib.format.read_magic(member)
+                read_header = (
+                    np.lib.format.read_array_header_1_0
+                    if version == (1, 0)
+                    else np.lib.format.read_array_header_2_0
+                )
+                shape, _, dtype = read_header(member, max_header_size=10_000)
+            declared = math.prod(shape) * dtype.itemsize
+            if declared > info.file_size:
+                raise RouteLogError(
+                    f"route log {path}: member {info.filename!r} declares {declared} bytes of data "
+                    f"({shape} {dtype}) but holds {info.file_size}"
+                )
 
 
 def _header(path: Path, raw: np.ndarray) -> dict[str, Any]:
@@ -491,6 +534,14 @@ def _header(path: Path, raw: np.ndarray) -> dict[str, Any]:
     for key in ("route_id", "town", "dt"):
         if key not in header:
             raise RouteLogError(f"route log {path}: header lacks {key!r}")
+    dt = header["dt"]
+    if isinstance(dt, bool) or not isinstance(dt, int | float) or not 0.0 < dt <= MAX_DT:
+        raise RouteLogError(
+            f"route log {path}: header dt must be a number of seconds in (0, {MAX_DT:g}], got {dt!r}"
+        )
+    if not isinstance(header["route_id"], str) or not isinstance(header["town"], str):
+        raise RouteLogError(f"route log {path}: header route_id and town must be strings")
+    header["dt"] = float(dt)
     return header
 
 
@@ -530,3 +581,48 @@ def _check_consistent(path: Path, a: dict[str, np.ndarray]) -> None:
         problems.append("route_xy is not (P, 2)")
     if problems:
         raise RouteLogError(f"route log {path} is inconsistent: {'; '.join(problems)}")
+
+
+def _check_values(path: Path, a: dict[str, np.ndarray]) -> None:
+    """Values the replay draws are finite and known: poses, extents, routes, kinds, roles, light states."""
+    problems = []
+    for name in ("x", "y", "yaw", "speed", "actor_length", "actor_width", "route_xy", "time"):
+        bad = np.flatnonzero(~np.isfinite(a[name]).reshape(len(a[name]), -1).all(axis=1))
+        if len(bad):
+            problems.append(f"{name} is not finite in {len(bad)} rows (first: row {int(bad[0])})")
+    if np.any(a["actor_length"] <= 0.0) or np.any(a["actor_width"] <= 0.0):
+        problems.append("an actor extent is not positive")
+    for name, enum in (("actor_kind", ActorKind), ("actor_role", Role)):
+        unknown = sorted(set(a[name].tolist()) - {int(v) for v in enum})
+        if unknown:
+            problems.append(f"{name} holds unknown values {unknown[:5]}")
+    if a["tls_state"].size and int(a["tls_state"].max()) >= 128:
+        problems.append("tls_state is not ASCII")
+    if problems:
+        raise RouteLogError(f"route log {path} holds values a replay cannot draw: {'; '.join(problems)}")
+
+
+def _check_events(log: RouteLog) -> None:
+    """Every event is a JSON object with the fields of ``EVENT_FIELDS`` and ``tick``: an integer log tick,
+    a CAV of the route, finite x and y, a string key and message."""
+    for i, raw in enumerate(log.arrays["events"].tolist()):
+        where = f"route log {log.path}: event {i}"
+        try:
+            event = json.loads(raw)
+        except (ValueError, RecursionError):
+            raise RouteLogError(f"{where} is not JSON") from None
+        if not isinstance(event, dict):
+            raise RouteLogError(f"{where} is not an object")
+        missing = [k for k in ("tick", *EVENT_FIELDS) if k not in event]
+        if missing:
+            raise RouteLogError(f"{where} lacks {missing}")
+        for name, limit in (("tick", log.num_ticks), ("cav", log.num_cavs)):
+            value = event[name]
+            if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value < limit:
+                raise RouteLogError(f"{where}: {name} must be an integer in 0..{limit - 1}, got {value!r}")
+        for name in ("x", "y"):
+            value = event[name]
+            if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+                raise RouteLogError(f"{where}: {name} must be a finite number, got {value!r}")
+        if not isinstance(event["key"], str) or not isinstance(event["message"], str):
+            raise RouteLogError(f"{where}: key and message must be strings")

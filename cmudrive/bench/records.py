@@ -3,14 +3,24 @@
 These are the shared vocabulary of the criteria (which fill them), the metrics (which aggregate them),
 the evaluator (which writes one JSON file per finished route) and the report. Keys follow the CARLA
 leaderboard / Bench2Drive results files where they exist (``reference/SCORING.md``).
+
+A record read back (``RouteResult.from_json``: the report, ``--resume``, the workers' results) is
+checked (:func:`record_problems`) before anything is computed from it: every field of its type, scores
+finite and in range (RC in [0, 100] %, IS in [0, 1], DS in [0, 100]), statuses known, CAV counts 1 to
+``MAX_RECORD_CAVS``, and the scores consistent with each other as ``metrics.route_result`` makes them
+(DS = RC x IS, success exactly when DS = 100, a success only with status Perfect or Completed, a
+Perfect route a success, RC the mean and IS the product of the CAVs' values). A record that breaks one
+raises ``ValueError`` naming the route and the field: a hand-edited or crafted results file is refused,
+never averaged into a summary.
 """
 
 from __future__ import annotations
 
 import hashlib
+import math
 import re
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import Any, TypeGuard
 
 # infraction keys, as in leaderboard results files, with their penalty factor (None: not a fixed factor)
 PENALTIES: dict[str, float | None] = {
@@ -113,13 +123,32 @@ class RouteResult:
 
     @staticmethod
     def from_json(data: dict[str, Any]) -> RouteResult:
+        """The record of ``to_json`` output; ``ValueError`` naming the route and the field when the data
+        is not a valid, self-consistent record (:func:`record_problems`), ``TypeError`` on unknown or
+        missing keys."""
+        if not isinstance(data, dict):
+            raise ValueError(f"a route record must be an object, got {type(data).__name__}")
+        cav_data = data.get("cavs", [])
+        if not isinstance(cav_data, list) or not all(isinstance(c, dict) for c in cav_data):
+            raise ValueError(f"route {_short(data.get('route_id'))}: cavs must be a list of objects")
         cavs = []
-        for c in data.get("cavs", []):
+        for c in cav_data:
             c = dict(c)
-            c["infractions"] = {k: [Infraction(**i) for i in v] for k, v in c.get("infractions", {}).items()}
+            infractions = c.get("infractions", {})
+            if not isinstance(infractions, dict) or not all(
+                isinstance(v, list) and all(isinstance(i, dict) for i in v) for v in infractions.values()
+            ):
+                raise ValueError(
+                    f"route {_short(data.get('route_id'))}: infractions must map keys to lists of objects"
+                )
+            c["infractions"] = {k: [Infraction(**i) for i in v] for k, v in infractions.items()}
             cavs.append(CavResult(**c))
         fields = {k: v for k, v in data.items() if k != "cavs"}
-        return RouteResult(cavs=cavs, **fields)
+        record = RouteResult(cavs=cavs, **fields)
+        problems = record_problems(record)
+        if problems:
+            raise ValueError(f"route {_short(record.route_id)}: {'; '.join(problems[:5])}")
+        return record
 
 
 RECORD_STEM_CHARS = 80  # longest route id used as a file name as it is
@@ -137,3 +166,151 @@ def record_stem(route_id: str) -> str:
     readable = "".join(c if c.isascii() and (c.isalnum() or c in "-_.") else "_" for c in route_id)
     digest = hashlib.sha256(route_id.encode("utf-8", "surrogatepass")).hexdigest()[:12]
     return f"{readable[:RECORD_STEM_CHARS].lstrip('.')}~{digest}"
+
+
+# ------------------------------------------------------------------------------------- record validation
+MAX_ROUTE_ID_CHARS = 255  # [-] a route id (a file-name length): printable characters only, no control
+MAX_TEXT_CHARS = 4096  # [-] town (a name or a .net.xml path: PATH_MAX), weather, scenario type
+MAX_RECORD_CAVS = 16  # [-] CAVs of a route (routes.MAX_CAVS)
+SCORE_TOLERANCE = 1e-6  # [score points] DS = RC x IS and RC = mean of the CAVs' RC_i within this
+SUCCESS_TOLERANCE = 1e-9  # [score points] DS counts as 100 within this (metrics.SUCCESS_TOLERANCE)
+# every STATUS_* string defined above (a status added there is known here without a second list)
+STATUSES = frozenset(v for k, v in dict(globals()).items() if k.startswith("STATUS_") and isinstance(v, str))
+
+
+def route_id_problem(route_id: object) -> str | None:
+    """Why ``route_id`` cannot be a route id, or None: ids are 1 to ``MAX_ROUTE_ID_CHARS`` printable
+    characters (no newline, tab or other control character), as they go into messages, file names and
+    CSV rows. The committed sets use ``<Type>_<k>`` ids up to 49 characters; Bench2Drive's are numbers."""
+    if not isinstance(route_id, str) or not route_id:
+        return f"route id must be a non-empty string, got {_short(route_id)}"
+    if len(route_id) > MAX_ROUTE_ID_CHARS:
+        return (
+            f"route id {_short(route_id)} is {len(route_id)} characters long (at most {MAX_ROUTE_ID_CHARS})"
+        )
+    bad = sorted({c for c in route_id if not c.isprintable()})
+    if bad:
+        return f"route id {_short(route_id)} holds unprintable characters {bad} (printable ones only)"
+    return None
+
+
+def _short(value: object, chars: int = 40) -> str:
+    text = repr(value)
+    return text if len(text) <= chars else f"{text[:chars]}..."
+
+
+def _finite(value: object) -> TypeGuard[float]:
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _number(value: object, name: str, lo: float, hi: float, problems: list[str]) -> bool:
+    """Append a problem unless ``value`` is a finite int/float (not a bool) in [lo, hi]."""
+    if not _finite(value):
+        problems.append(f"{name} must be a finite number, got {_short(value)}")
+        return False
+    if not lo <= value <= hi:
+        problems.append(f"{name} must be in [{lo:g}, {hi:g}], got {value!r}")
+        return False
+    return True
+
+
+def _integer(value: object, name: str, lo: int, hi: float, problems: list[str]) -> None:
+    if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
+        problems.append(f"{name} must be an integer in [{lo}, {hi:g}], got {_short(value)}")
+
+
+def _cav_problems(c: CavResult, problems: list[str]) -> bool:
+    """Problems of one CAV's record; True when its RC_i and IS_i are usable numbers."""
+    where = f"CAV {_short(c.cav_id)}"
+    if not isinstance(c.cav_id, str):
+        problems.append(f"{where}: cav_id must be a string")
+    if c.status not in STATUSES:
+        problems.append(f"{where}: unknown status {_short(c.status)}")
+    ok = _number(c.route_completion, f"{where}: route_completion", 0.0, 100.0, problems)
+    ok &= _number(c.infraction_score, f"{where}: infraction_score", 0.0, 1.0, problems)
+    _number(c.route_length, f"{where}: route_length", 0.0, math.inf, problems)
+    _integer(c.ticks, f"{where}: ticks", 0, math.inf, problems)
+    for name in ("comfort", "first_junction_completion"):
+        value = getattr(c, name)
+        if value is not None:
+            _number(value, f"{where}: {name}", 0.0, 1.0 if name == "comfort" else 100.0, problems)
+    if not isinstance(c.min_speed_checkpoints, list):
+        problems.append(f"{where}: min_speed_checkpoints must be a list")
+    else:
+        for v in c.min_speed_checkpoints:
+            if not _number(v, f"{where}: min_speed_checkpoints", 0.0, math.inf, problems):
+                break
+    for key, events in c.infractions.items():
+        if key not in PENALTIES:
+            problems.append(f"{where}: unknown infraction key {_short(key)}")
+        for e in events:
+            if not isinstance(e.key, str) or not isinstance(e.message, str):
+                problems.append(f"{where}: {key} infraction key and message must be strings")
+            _integer(e.tick, f"{where}: {key} tick", 0, math.inf, problems)
+            _number(e.factor, f"{where}: {key} factor", 0.0, 1.0, problems)
+            for name in ("time", "x", "y"):  # NaN where the CAV's position was unknown: shown, not scored
+                value = getattr(e, name)
+                if isinstance(value, bool) or not isinstance(value, int | float):
+                    problems.append(f"{where}: {key} {name} must be a number, got {_short(value)}")
+    return ok
+
+
+def record_problems(r: RouteResult) -> list[str]:
+    """What is wrong with a route record (empty: nothing); see the module docstring for the rules."""
+    problems: list[str] = []
+    id_problem = route_id_problem(r.route_id)
+    if id_problem:
+        problems.append(id_problem)
+    for name in ("town", "weather", "scenario_type"):
+        value = getattr(r, name)
+        if not isinstance(value, str) or len(value) > MAX_TEXT_CHARS or not value.isprintable():
+            problems.append(f"{name} must be a string of at most {MAX_TEXT_CHARS} printable characters")
+    before = len(problems)
+    _integer(r.num_cavs, "num_cavs", 1, MAX_RECORD_CAVS, problems)
+    if len(problems) == before and len(r.cavs) > r.num_cavs:
+        problems.append(f"{len(r.cavs)} CAV results for num_cavs {r.num_cavs}")
+    if r.status not in STATUSES:
+        problems.append(f"unknown status {_short(r.status)}")
+    _integer(r.seed, "seed", 0, 2**31 - 1, problems)
+    _integer(r.ticks, "ticks", 0, math.inf, problems)
+    _number(r.wall_time, "wall_time", 0.0, math.inf, problems)
+    if r.error is not None and not isinstance(r.error, str):
+        problems.append("error must be a string or null")
+    if r.scenario_simulated is not None and not isinstance(r.scenario_simulated, bool):
+        problems.append("scenario_simulated must be true, false or null")
+    if r.v2v is not None and (
+        not isinstance(r.v2v, dict)
+        or not all(
+            isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+            for v in r.v2v.values()
+        )
+    ):
+        problems.append("v2v must map counter names to finite numbers")
+    cavs_ok = all([_cav_problems(c, problems) for c in r.cavs])
+    if not isinstance(r.success, bool):
+        problems.append(f"success must be true or false, got {_short(r.success)}")
+    scores_ok = _number(r.route_completion, "route_completion", 0.0, 100.0, problems)
+    scores_ok &= _number(r.infraction_score, "infraction_score", 0.0, 1.0, problems)
+    scores_ok &= _number(r.driving_score, "driving_score", 0.0, 100.0, problems)
+    if not scores_ok or not isinstance(r.success, bool):
+        return problems
+    if abs(r.driving_score - r.route_completion * r.infraction_score) > SCORE_TOLERANCE:
+        problems.append(
+            f"driving_score {r.driving_score!r} is not route_completion x infraction_score "
+            f"({r.route_completion!r} x {r.infraction_score!r})"
+        )
+    if r.success != (abs(r.driving_score - 100.0) <= SUCCESS_TOLERANCE):
+        problems.append(f"success {r.success} with driving_score {r.driving_score!r} (success is DS = 100)")
+    if r.success and r.status not in (STATUS_PERFECT, STATUS_COMPLETED):
+        problems.append(f"success with status {r.status!r} (only a Perfect or Completed route succeeds)")
+    if r.status == STATUS_PERFECT and not r.success:
+        problems.append("status Perfect without success")
+    if r.cavs and cavs_ok:
+        rc = math.fsum(c.route_completion for c in r.cavs) / len(r.cavs)
+        is_ = math.prod(c.infraction_score for c in r.cavs)
+        if abs(rc - r.route_completion) > SCORE_TOLERANCE or abs(is_ - r.infraction_score) > SCORE_TOLERANCE:
+            problems.append(
+                f"route_completion {r.route_completion!r} / infraction_score {r.infraction_score!r} are not "
+                f"the mean / product of the CAVs' ({rc!r} / {is_!r})"
+            )
+    return problems

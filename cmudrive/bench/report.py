@@ -12,11 +12,18 @@ summarises them (``metrics.summarize``) into::
     by_weather.png           DS and SR per weather preset
 
 Charts are drawn with matplotlib's Agg canvas (no pyplot state), 150 dpi.
+
+Records are validated when read (``RouteResult.from_json``: ranges, statuses, consistency); a bad one is
+a ``ResultsError`` naming the file and the record. Text from the records is written inertly: markdown
+cells are HTML-escaped (``<``, ``>``, ``&``; ``|`` and line breaks too, which would break the table), and
+CSV text cells that a spreadsheet would run as a formula (starting with ``= + - @``, tab or carriage
+return) get a leading ``'`` (OWASP's advice for CSV injection). Numbers are written as they are.
 """
 
 from __future__ import annotations
 
 import csv
+import html
 import json
 import math
 from collections.abc import Sequence
@@ -59,6 +66,8 @@ def _read_json(path: Path) -> Any:
         return json.loads(path.read_text(encoding="utf-8"))
     except json.JSONDecodeError as e:
         raise ResultsError(f"{path}: malformed JSON (line {e.lineno}, column {e.colno}: {e.msg})") from e
+    except RecursionError:  # json's decoder recurses per level: 100k nested brackets exhaust the stack
+        raise ResultsError(f"{path}: JSON nested too deeply to be a results file") from None
     except (OSError, UnicodeDecodeError) as e:
         raise ResultsError(f"{path}: cannot read ({e})") from e
 
@@ -74,9 +83,9 @@ def _records(path: Path, data: Any) -> list[RouteResult]:
             if not isinstance(item, dict):
                 raise TypeError(f"expected an object, got {type(item).__name__}")
             out.append(RouteResult.from_json(item))
-        except (TypeError, KeyError, AttributeError) as e:
+        except (TypeError, KeyError, AttributeError, ValueError) as e:
             where = f"record {i}" if isinstance(data, list) else "record"
-            raise ResultsError(f"{path}: {where} is not a route result ({e})") from e
+            raise ResultsError(f"{path}: {where} is not a route result ({e})") from None
     return out
 
 
@@ -104,11 +113,28 @@ def load_results(path: str | Path) -> list[RouteResult]:
 
 
 def _fmt(value: Any, digits: int = 2) -> str:
+    """A markdown table cell: numbers to ``digits`` places, text HTML-escaped with ``|`` and line breaks
+    made harmless."""
     if value is None or (isinstance(value, float) and math.isnan(value)):
         return EMPTY
     if isinstance(value, float):
         return f"{value:.{digits}f}"
-    return str(value)
+    text = html.escape(str(value), quote=False).replace("|", "\\|")
+    return " ".join(text.splitlines())
+
+
+FORMULA_START = ("=", "+", "-", "@", "\t", "\r")  # a spreadsheet runs a cell starting so as a formula
+
+
+def _csv_cell(value: Any) -> Any:
+    """A CSV cell: text a spreadsheet would run as a formula gets a leading ``'``; numbers unchanged."""
+    if isinstance(value, str) and value.startswith(FORMULA_START):
+        return "'" + value
+    return value
+
+
+def _csv_row(writer: Any, row: Sequence[Any]) -> None:
+    writer.writerow([_csv_cell(v) for v in row])
 
 
 def _md_table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> list[str]:
@@ -182,7 +208,7 @@ def _write_summary_csv(path: Path, s: dict[str, Any]) -> None:
         w.writerow(["overall", "all", s["num_routes"], s["driving_score"], s["success_rate"]])
         for name in ("by_scenario_type", "by_ability", "by_weather", "by_num_cavs"):
             for k, g in s[name].items():
-                w.writerow([name, k, g["num_routes"], g["driving_score"], g["success_rate"]])
+                _csv_row(w, [name, k, g["num_routes"], g["driving_score"], g["success_rate"]])
         for k, v in s["multi_ability"].items():
             w.writerow(["multi_ability", k, "", "", "" if v is None else v])
         for key in ("route_completion", "infraction_score", "efficiency", "comfortness"):
@@ -203,7 +229,7 @@ def _write_routes_csv(path: Path, routes: Sequence[RouteResult]) -> None:
         for r in routes:
             eff, comfort = route_efficiency(r), route_comfort(r)
             counts = [sum(len(c.infractions.get(k, [])) for c in r.cavs) for k in INFRACTION_KEYS]
-            w.writerow([
+            _csv_row(w, [
                 r.route_id, r.town, r.weather, r.scenario_type, r.num_cavs, r.status, r.route_completion,
                 r.infraction_score, r.driving_score, int(r.success), int(is_success(r)),
                 "" if eff is None else eff, "" if comfort is None else comfort, r.ticks, r.wall_time,
@@ -257,6 +283,7 @@ def _bar_chart(
     ax.set_xticks(x)
     ax.set_xticklabels([str(k) or "(none)" for k in labels], rotation=90 if rotate else 0, fontsize=8)
     for tick, k in zip(ax.get_xticklabels(), labels, strict=True):
+        tick.set_parse_math(False)  # a group name from a record is text, not mathtext ("$\\frac{$" raised)
         if k not in groups:
             tick.set_color("0.6")
     ax.set_xlim(-0.7, len(labels) - 0.3)

@@ -42,10 +42,12 @@ from typing import Literal, overload
 
 import numpy as np
 
+from cmudrive.bench.records import route_id_problem
 from cmudrive.bench.scenario_types import SCENARIO_TYPES
 from cmudrive.maps import MapError, RoadMap, Route, RouteError, densify
 from cmudrive.maps.cache import resolve_map_path
 from cmudrive.maps.coords import carla_to_map
+from cmudrive.sim.actor_types import ACTOR_TYPES
 from cmudrive.sim.weather import WEATHERS
 
 MIN_CAVS = 2  # [-] CAVs per route in a route file (``min_cavs=1`` allows single-ego files)
@@ -61,6 +63,18 @@ DETOUR_SLACK = 500.0  # [m]
 # it activates the scenario (ScenarioConfig.activation_distance), so a farther trigger never fires.
 # ``routes check`` and ``eval`` both use it.
 TRIGGER_TOLERANCE = 2.0
+# Input bounds. Reading and planning are linear in the waypoints (each keypoint is snapped and joined to
+# the next by one lane-graph search, ~0.3 ms per waypoint on a laptop core), so these bounds cap the work
+# of `routes check` and of route setup in `eval`: a 45 MB file of 800 k waypoints took minutes without an
+# answer. The committed sets hold at most 9 waypoints per CAV and 6909 in a file (cmudrive220.xml, 0.5 MB).
+MAX_FILE_BYTES = 16 * 2**20  # [bytes] a route file (Bench2Drive's and Leaderboard 2.0's are ~1-3 MB)
+MAX_WAYPOINTS = 2000  # [-] per CAV: a 20 km route (MAX_ROUTE_LENGTH) with a keypoint every 10 m
+MAX_FILE_WAYPOINTS = 100_000  # [-] <position>/<waypoint> elements in a file (~30 s of planning)
+# CAV starts: two CAVs whose dense routes start on the same lane less than a CAV length apart, or whose
+# start points are closer than a CAV width whatever their lanes, would spawn overlapping (a collision at
+# tick 0, blamed on the agent); such a route is refused. Generated routes keep 15 m (route_gen).
+MIN_START_SPACING = ACTOR_TYPES["cav"].length  # [m] along a shared start lane
+MIN_START_DISTANCE = ACTOR_TYPES["cav"].width  # [m] between start points on any lanes
 
 # numbers as route files write them: ASCII decimal only (str.isdigit and float accept "²", "١٢", "1_000")
 _INT = re.compile(r"[0-9]+", re.ASCII)
@@ -204,8 +218,9 @@ class RouteSpec:
             raise MapError(f"route {self.id}: {exc}") from None
 
     def __post_init__(self) -> None:
-        if not isinstance(self.id, str) or not self.id:
-            raise RouteSpecError(f"route id must be a non-empty string, got {self.id!r}")
+        problem = route_id_problem(self.id)
+        if problem:
+            raise RouteSpecError(problem)
         err = self._problem()
         if err:
             raise RouteSpecError(err, route_id=self.id)
@@ -242,7 +257,8 @@ class RouteSpec:
         """Every CAV's waypoints joined into a dense 1 m route (``cmudrive.maps.densify``), in CAV order;
         a RouteError names the route and the CAV. A route must be ``MIN_ROUTE_LENGTH`` to
         ``MAX_ROUTE_LENGTH`` long, and at most ``DETOUR_FACTOR`` x its waypoints' polyline +
-        ``DETOUR_SLACK``: waypoints that go back and forth make the planner loop round blocks."""
+        ``DETOUR_SLACK``: waypoints that go back and forth make the planner loop round blocks. No two
+        CAVs may start overlapping (:func:`start_conflicts`)."""
         routes = []
         for cav in self.cavs:
             points = self.map_waypoints(cav.id)
@@ -259,7 +275,32 @@ class RouteSpec:
                     "(its waypoints are (nearly) all the same point)"
                 )
             routes.append(route)
+        clashes = start_conflicts(routes)
+        if clashes:
+            pairs = ", ".join(f"CAVs {a} and {b} ({gap:.1f} m)" for a, b, gap in clashes[:5])
+            more = f" and {len(clashes) - 5} more pairs" if len(clashes) > 5 else ""
+            raise RouteError(
+                f"route {self.id!r} on {road_map.name!r}: {pairs}{more} start on top of each other (starts "
+                f"on one lane must be {MIN_START_SPACING:.2f} m apart, on any lanes "
+                f"{MIN_START_DISTANCE:.2f} m: a CAV length and width)"
+            )
         return routes
+
+
+def start_conflicts(routes: Sequence[Route]) -> list[tuple[int, int, float]]:
+    """Pairs of CAVs ``(i, j, distance between their start points [m])``, i < j, whose dense routes start
+    overlapping: on the same lane less than ``MIN_START_SPACING`` apart along it, or less than
+    ``MIN_START_DISTANCE`` apart in a straight line whatever the lanes (they would spawn in each other)."""
+    if len(routes) < 2:
+        return []
+    xy = np.array([r.xy[0] for r in routes])
+    lane = np.array([r.lane[0] for r in routes])
+    s = np.array([r.s[0] for r in routes])
+    i, j = np.triu_indices(len(routes), k=1)  # at most 16 CAVs: 120 pairs
+    dist = np.hypot(*(xy[i] - xy[j]).T)
+    along = np.abs(s[i] - s[j])
+    bad = ((lane[i] == lane[j]) & (along < MIN_START_SPACING)) | (dist < MIN_START_DISTANCE)
+    return [(int(a), int(b), float(d)) for a, b, d in zip(i[bad], j[bad], dist[bad], strict=True)]
 
 
 def _suggest(scenario_type: str) -> str:
@@ -302,6 +343,13 @@ def _check_attrs(elem: ET.Element, allowed: frozenset[str], what: str) -> None:
 def points_from_xml(elems: Iterable[ET.Element], cav_id: int | None = None) -> np.ndarray:
     """``<position x y z/>`` (or Leaderboard 1.0 ``<waypoint>``) elements -> (n, 3) CARLA points; z defaults
     to 0 and pitch/roll/yaw are ignored."""
+    elems = list(elems)
+    if len(elems) > MAX_WAYPOINTS:
+        raise RouteSpecError(
+            f"{len(elems)} waypoints, more than the {MAX_WAYPOINTS} a CAV may have (waypoints are keypoints "
+            "of the route, ~50 m apart: see docs/route_format.md)",
+            cav_id=cav_id,
+        )
     rows = []
     for i, elem in enumerate(elems):
         try:
@@ -398,8 +446,17 @@ def _cav_from_xml(elem: ET.Element, index: int) -> CavSpec:
 
 
 def parse_xml(path: str | Path, root_tag: str) -> ET.Element:
-    """Root element of an XML file, checked to be ``<root_tag>``; RouteSpecError naming the file otherwise."""
+    """Root element of an XML file, checked to be ``<root_tag>``; RouteSpecError naming the file otherwise.
+    A file larger than ``MAX_FILE_BYTES`` is refused before it is parsed, one with more than
+    ``MAX_FILE_WAYPOINTS`` waypoints before any is read."""
     try:
+        size = os.stat(path).st_size
+        if size > MAX_FILE_BYTES:
+            raise RouteSpecError(
+                f"the file is {size / 2**20:.1f} MiB, larger than the {MAX_FILE_BYTES // 2**20} MiB a route "
+                "file may be",
+                path=str(path),
+            )
         root = ET.parse(path).getroot()
     except FileNotFoundError:
         raise RouteSpecError("route file not found", path=str(path)) from None
@@ -407,6 +464,11 @@ def parse_xml(path: str | Path, root_tag: str) -> ET.Element:
         raise RouteSpecError(f"not readable as XML: {exc}", path=str(path)) from None
     if root.tag != root_tag:
         raise RouteSpecError(f"root element is <{root.tag}>, expected <{root_tag}>", path=str(path))
+    count = sum(1 for e in root.iter() if e.tag in ("position", "waypoint"))
+    if count > MAX_FILE_WAYPOINTS:
+        raise RouteSpecError(
+            f"{count} waypoints, more than the {MAX_FILE_WAYPOINTS} a route file may hold", path=str(path)
+        )
     return root
 
 
@@ -425,18 +487,24 @@ def read_routes(
 
     ``strict=True`` raises :class:`RouteSpecError` (naming the file, route and CAV) on the first bad route;
     ``strict=False`` returns ``(good_routes, [(route_id, error message), ...])``. A route without an id is
-    reported as ``#k`` (its 1-based position). A file that cannot be read at all always raises."""
+    reported as ``#k`` (its 1-based position), as is one whose id breaks the id rules
+    (:func:`route_id_problem`). A file that cannot be read at all, or is too large (``MAX_FILE_BYTES``,
+    ``MAX_FILE_WAYPOINTS``), always raises."""
     root = parse_xml(path, "routes")
     routes: list[RouteSpec] = []
     errors: list[tuple[str, str]] = []
     seen: set[str] = set()
     for k, elem in enumerate(root, start=1):
-        rid = elem.get("id") or f"#{k}"
+        raw_id = elem.get("id")
+        rid = raw_id if raw_id and route_id_problem(raw_id) is None else f"#{k}"
         try:
             if elem.tag != "route":
                 raise RouteSpecError(f"unknown element <{elem.tag}> in <routes>")
-            if not elem.get("id"):
+            if not raw_id:
                 raise RouteSpecError("missing route id")
+            problem = route_id_problem(raw_id)
+            if problem:
+                raise RouteSpecError(problem)
             if rid in seen:
                 raise RouteSpecError("duplicate route id")
             seen.add(rid)
@@ -517,6 +585,8 @@ __all__ = [
     "ScenarioSpec",
     "points_from_xml",
     "read_routes",
+    "route_id_problem",
     "scenario_from_xml",
+    "start_conflicts",
     "write_routes",
 ]

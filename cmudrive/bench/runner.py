@@ -424,7 +424,7 @@ def _records(out: Path, route_ids: list[str]) -> dict[str, RouteResult]:
     for rid in route_ids:
         try:
             record = RouteResult.from_json(json.loads(record_path(out, rid).read_text()))
-        except (OSError, ValueError, KeyError, TypeError):
+        except (OSError, ValueError, KeyError, TypeError, RecursionError):  # (invalid records included)
             continue
         if record.route_id == rid:
             found[rid] = record

@@ -19,7 +19,15 @@ from cmudrive.data.labels import (
 )
 from cmudrive.data.language import Language, LanguageInputs, describe
 from cmudrive.data.schema import COLUMNS, features, pack_occupancy, unpack_occupancy
-from cmudrive.data.shards import ShardWriter, load_shards, shard_complete, shard_path, shard_paths
+from cmudrive.data.shards import (
+    ShardError,
+    ShardWriter,
+    load_shards,
+    shard_complete,
+    shard_path,
+    shard_paths,
+    verify_shard,
+)
 
 __all__ = [
     "COLUMNS",
@@ -34,6 +42,7 @@ __all__ = [
     "Language",
     "LanguageInputs",
     "RouteInfo",
+    "ShardError",
     "ShardJob",
     "ShardWriter",
     "check_not_benchmark",
@@ -48,5 +57,6 @@ __all__ = [
     "shard_paths",
     "to_ego",
     "unpack_occupancy",
+    "verify_shard",
     "waypoint_labels",
 ]

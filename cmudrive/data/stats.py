@@ -1,6 +1,7 @@
 """What a dataset folder holds (``cmudrive data stats DIR``): samples per scenario type, weather, CAV count
-and town, label histograms, waypoint ranges and size on disk. Reads only the small columns of each shard
-(Parquet is columnar: the images are never touched), so it takes seconds for 180K samples."""
+and town, label histograms, waypoint ranges and size on disk. Every shard is first read whole with its
+page checksums verified (``shards.verify_shard``: a corrupt shard is an error naming it, never counted
+as good samples); the statistics then come from the small columns only."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from cmudrive.data.shards import shard_paths
+from cmudrive.data.shards import shard_paths, verify_shard
 
 COUNTED = ("scenario_type", "weather", "num_cavs", "town", "speed_action", "route_action", "reason")
 READ = (*COUNTED, "route_id", "speed", "communication", "partner_label", "partner", "path", "speed_waypoints")
@@ -30,6 +31,8 @@ def dataset_stats(out: Path | str) -> dict[str, Any]:
     files = shard_paths(Path(out))
     if not files:
         raise FileNotFoundError(f"{out}: no shard (*.parquet)")
+    for f in files:
+        verify_shard(f)
     tables = [pq.read_table(f, columns=list(READ)) for f in files]
     table = pa.concat_tables(tables)
     n = table.num_rows

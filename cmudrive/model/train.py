@@ -327,8 +327,7 @@ class Trainer:
         self.state = TrainState()
         last = latest_checkpoint(self.out) if resume else None
         if last is not None:
-            acc.load_state(str(last))
-            self.state = TrainState(**json.loads((last / STATE).read_text()))
+            self.state = _load_checkpoint(acc, last)
             acc.print(f"resuming from {last} (step {self.state.step})")
         self.metrics = _MetricsLog(self.out, self.state.step, acc.is_main_process)
         if acc.is_main_process:
@@ -395,6 +394,36 @@ class Trainer:
 
 
 RESUME_MAY_CHANGE = ("num_workers", "log_every")  # settings that do not change what is trained
+
+
+def _load_checkpoint(accelerator: Any, path: Path) -> TrainState:
+    """Load the accelerate state of checkpoint ``path`` and its ``state.json``. torch's safe loader
+    (``weights_only``) refuses a file that pickles anything beyond tensors and plain containers, and
+    nothing in the folder is trusted further: each refusal or unreadable file is a ``ValueError`` that
+    names the checkpoint, not a traceback."""
+    import pickle
+
+    try:
+        accelerator.load_state(str(path))
+    except pickle.UnpicklingError as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise ValueError(
+            f"{path}: --resume refused this checkpoint: a file in it holds pickled objects that torch's "
+            f"safe loader does not load ({first}); it was not written by cmudrive train, or was altered. "
+            "Delete the folder to resume from an earlier checkpoint."
+        ) from None
+    except (OSError, RuntimeError, KeyError, EOFError, ValueError) as exc:
+        raise ValueError(
+            f"{path}: --resume cannot load this checkpoint ({type(exc).__name__}: {exc})"
+        ) from None
+    try:
+        state = TrainState(**json.loads((path / STATE).read_text()))
+    except (OSError, ValueError, TypeError, RecursionError) as exc:
+        raise ValueError(f"{path / STATE}: not a training state ({exc})") from None
+    values = dataclasses.astuple(state)
+    if not all(isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in values):
+        raise ValueError(f"{path / STATE}: step, epoch and batch_in_epoch must be counts, got {values}")
+    return state
 
 
 def _check_out(config: TrainConfig, out: Path, resume: bool) -> None:
