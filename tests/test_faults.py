@@ -222,7 +222,7 @@ def _bad_routes() -> list[RouteSpec]:
     still = np.tile(ring.cavs[0].waypoints[:1], (5, 1))  # five times the same point: a 0 m route
     return [
         replace(ring, id="no_town", town="NoSuchTown"),
-        replace(ring, id="path_town", town="../../etc/passwd"),
+        replace(ring, id="path_town", town="../../no_such_folder/Town01"),  # resolved from any cwd
         replace(ring, id="zero_length", cavs=(CavSpec(0, still), ring.cavs[1])),
         replace(
             ring,

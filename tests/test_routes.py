@@ -446,8 +446,9 @@ def test_cavs_starting_on_one_spot_are_refused_naming_them(tmp_path: Path) -> No
 
 
 def test_eval_reads_routes_under_the_same_bounds(tmp_path: Path) -> None:
-    """`cmudrive eval` reads its routes with read_routes: an oversized CAV and a bad id are skipped with
-    their reasons, and a file with nothing left is refused before any world starts."""
+    """`cmudrive eval` reads its routes with read_routes: an oversized CAV and a bad id are refused with
+    their reasons before any world starts; with --skip-invalid they are skipped, and a file with nothing
+    left is refused."""
     from typer.testing import CliRunner
 
     from cmudrive.bench.routes import MAX_WAYPOINTS
@@ -457,7 +458,13 @@ def test_eval_reads_routes_under_the_same_bounds(tmp_path: Path) -> None:
     cavs = f'<cav id="0"><waypoints>{pos * (MAX_WAYPOINTS + 1)}</waypoints></cav>'
     cavs += f'<cav id="1"><waypoints>{pos * 2}</waypoints></cav>'
     path = _write(tmp_path, _route_xml("many", cavs=cavs), _route_xml("bad&#10;id"))
-    result = CliRunner().invoke(app, ["eval", "--routes", str(path), "--out", str(tmp_path / "out")])
+    args = ["eval", "--routes", str(path), "--out", str(tmp_path / "out")]
+    result = CliRunner().invoke(app, args)
+    text = " ".join(result.output.split())
+    assert result.exit_code == 1 and "2 routes cannot be read" in text
+    assert f"{path}, route 'many': CAV 0: {MAX_WAYPOINTS + 1} waypoints" in text
+    assert "route '#2': route id 'bad\\nid' holds unprintable characters" in text
+    result = CliRunner().invoke(app, [*args, "--skip-invalid"])
     text = " ".join(result.output.split())
     assert result.exit_code == 1 and "no route to run (every route is invalid)" in text
     assert f"skipping route many: {path}, route 'many': CAV 0: {MAX_WAYPOINTS + 1} waypoints" in text
