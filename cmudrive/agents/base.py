@@ -19,9 +19,11 @@ from __future__ import annotations
 import functools
 import importlib
 import inspect
+import os
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from enum import Enum
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
@@ -123,6 +125,18 @@ class Agent(ABC):
 
     def destroy(self) -> None:  # noqa: B027 - optional hook, nothing to do by default
         """Called once when the route ends (also after a crash)."""
+
+    @classmethod
+    def input_files(cls, options: Mapping[str, Any]) -> dict[str, Path]:
+        """The files and folders (checkpoints, weights) an agent made with ``cls(**options)`` loads, by
+        name: a run records a hash of their content, and ``--resume`` refuses other content. By default
+        the ``checkpoint`` option (``cmudrive eval --checkpoint``) when it names an existing path; an agent
+        that loads other files, or a default checkpoint when none is named, adds them here (other options
+        are compared as they are written, paths by name)."""
+        path = options.get("checkpoint")
+        if isinstance(path, str | os.PathLike) and Path(path).exists():
+            return {"checkpoint": Path(path).resolve()}
+        return {}
 
 
 def check_observations(agent: Agent, provided: frozenset[Observation] = PROVIDED) -> None:

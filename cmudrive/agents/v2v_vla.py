@@ -26,6 +26,7 @@ closed loop than the pair that reads it (``v2v-vla-tiny/``, ``v2v-vla-baseline-t
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -140,6 +141,16 @@ class V2VVLAAgent(Agent):
         self.device = device
         self.model: Any = None
         self.last_text: list[str] = []
+
+    @classmethod
+    def input_files(cls, options: Mapping[str, Any]) -> dict[str, Path]:
+        """The checkpoint it loads: ``checkpoint`` or the committed default."""
+        files = super().input_files(options)
+        try:
+            files["checkpoint"] = resolve_checkpoint(options.get("checkpoint"), cls.cooperative).resolve()
+        except FileNotFoundError:  # the agent's constructor says so, in every route
+            pass
+        return files
 
     def setup(self, route: RouteSetup) -> None:
         if self.model is None:
