@@ -6,6 +6,7 @@ import contextlib
 import dataclasses
 import json
 import os
+import warnings
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Annotated, Any
@@ -45,7 +46,10 @@ def default_workers() -> int:
 
 
 def _fail(exc: Exception) -> None:
-    err_console.print(f"[bold red]error:[/] {exc}")
+    from rich.markup import escape
+
+    # the message as it is: no markup read in it, only its own line breaks
+    err_console.print(f"[bold red]error:[/] {escape(str(exc))}", soft_wrap=True)
     raise typer.Exit(code=1)
 
 
@@ -413,6 +417,23 @@ def _route_executor(executor: str, workers: int | None, ray_address: str | None)
 
 
 @contextlib.contextmanager
+def _warnings_to_stderr() -> Iterator[None]:
+    """Python warnings raised inside (a resume of a folder written by other code: ResumeWarning, shown
+    every time) printed on stderr as ``warning: ...`` lines."""
+    from rich.markup import escape
+
+    from cmudrive.bench.manifest import ResumeWarning
+
+    def show(message: Warning | str, *args: Any, **kwargs: Any) -> None:
+        err_console.print(f"[bold yellow]warning:[/] {escape(str(message))}", highlight=False)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", ResumeWarning)
+        warnings.showwarning = show
+        yield
+
+
+@contextlib.contextmanager
 def _route_progress(path: Path, total: int, tick_cap: int) -> Iterator[tuple[Any, Any]]:
     """Progress bars: one over the routes, one per running route over its ticks. Yields
     (on_progress(route_id, tick), done(route_id)): ``done`` advances the overall bar."""
@@ -533,10 +554,6 @@ def evaluate(
     from cmudrive.v2v import LinkConfig
 
     path, specs = _read_specs(routes, town_dir, refuse_invalid=not skip_invalid)
-    if seed:
-        from cmudrive.bench.routes import MAX_SEED
-
-        specs = [dataclasses.replace(s, seed=(s.seed + seed) % (MAX_SEED + 1)) for s in specs]
     try:
         sensors = SensorConfig(
             noise=DetectionNoise(*detection_noise),
@@ -576,18 +593,21 @@ def evaluate(
                 err_console.print(f"  [red]{escape(last)}[/]", highlight=False)
 
         try:
-            merged = run_evaluation(
-                specs,
-                agent,
-                out,
-                runner,
-                config,
-                resume,
-                on_result,
-                on_progress,
-                max_memory=max_memory,
-                skip_invalid=skip_invalid,
-            )
+            with _warnings_to_stderr():
+                merged = run_evaluation(
+                    specs,
+                    agent,
+                    out,
+                    runner,
+                    config,
+                    resume,
+                    on_result,
+                    on_progress,
+                    max_memory=max_memory,
+                    skip_invalid=skip_invalid,
+                    seed=seed,
+                    routes_file=path,
+                )
         except KeyboardInterrupt:
             err_console.print(f"interrupted: finished routes are in {out / 'routes'}; continue with --resume")
             raise typer.Exit(code=130) from None
@@ -662,16 +682,18 @@ def data_collect(
                 err_console.print(f"[red]route {result.route_id} failed, no shard:[/] {escape(last[0])}")
 
         try:
-            summary = collect(
-                specs,
-                out,
-                runner,
-                config,
-                resume=resume,
-                allow_benchmark=allow_benchmark_routes,
-                on_result=on_result,
-                on_progress=on_progress,
-            )
+            with _warnings_to_stderr():
+                summary = collect(
+                    specs,
+                    out,
+                    runner,
+                    config,
+                    resume=resume,
+                    allow_benchmark=allow_benchmark_routes,
+                    on_result=on_result,
+                    on_progress=on_progress,
+                    routes_file=path,
+                )
         except KeyboardInterrupt:
             err_console.print(f"interrupted: finished shards are in {out}; continue with --resume")
             raise typer.Exit(code=130) from None

@@ -3,8 +3,10 @@
 
 from __future__ import annotations
 
+import json
 import os
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 
 import datasets
@@ -14,6 +16,7 @@ import pytest
 from cmudrive.agents import Observations
 from cmudrive.agents.expert import ExpertAgent
 from cmudrive.bench.evaluator import EvalConfig, RouteHooks
+from cmudrive.bench.manifest import SetupMismatchError
 from cmudrive.bench.records import STATUS_AGENT_CRASHED
 from cmudrive.bench.routes import CavSpec, RouteSpec, read_routes
 from cmudrive.bench.runner import ProgressCallback, RouteTask, run_task
@@ -128,6 +131,12 @@ def test_resume_collects_only_what_is_missing(mini: RoadMap, mini_net: Path, tmp
     assert summary.skipped == ["r0"] and summary.written == ["r1"]
     assert first.stat().st_mtime_ns == stamp and second.exists()
     assert not list(tmp_path.glob(".*.tmp"))
+    runs = json.loads((tmp_path / ".run.json").read_text())["runs"]  # hidden: datasets reads the rest
+    assert [r["resume"] for r in runs] == [False, True]
+    second.unlink()  # a resume with another tick cap would mix shards of two setups
+    with pytest.raises(SetupMismatchError, match=r"config\.tick_cap: 40 \(then\) -> 41 \(now\)"):
+        collect(specs, tmp_path, InlineExecutor(), replace(short, tick_cap=41), resume=True)
+    assert not second.exists()
 
 
 def test_a_bad_route_is_named_and_the_others_are_written(

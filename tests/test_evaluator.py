@@ -52,6 +52,19 @@ class RaisesAtTick10(PidAgent):
         return super().run_step(obs)
 
 
+class RaisesOnRouteBad(PidAgent):
+    """Drives like the PID agent, but raises at tick 10 of the route with id "bad"."""
+
+    def setup(self, route: RouteSetup) -> None:
+        super().setup(route)
+        self.route_id = route.route_id
+
+    def run_step(self, obs: Observations) -> Controls:
+        if obs.tick == 10 and self.route_id == "bad":
+            raise RuntimeError("boom at tick 10")
+        return super().run_step(obs)
+
+
 class ReturnsNaN(PidAgent):
     def run_step(self, obs: Observations) -> Controls:
         c = super().run_step(obs)
@@ -103,12 +116,13 @@ def test_crash_isolation_and_resume(tmp_path: Path) -> None:
     config = EvalConfig(background=EMPTY, tick_cap=300)
     ran: list[str] = []
 
+    agent = f"{__name__}:RaisesOnRouteBad"
     merged = run_evaluation(
-        routes[:1], PidAgent, tmp_path, LocalExecutor(2), config, on_result=lambda r: ran.append(r.route_id)
+        routes[:1], agent, tmp_path, LocalExecutor(2), config, on_result=lambda r: ran.append(r.route_id)
     )
     merged = run_evaluation(
         routes,
-        f"{__name__}:RaisesAtTick10",
+        agent,
         tmp_path,
         LocalExecutor(2),
         config,
@@ -125,7 +139,7 @@ def test_crash_isolation_and_resume(tmp_path: Path) -> None:
     ran.clear()
     run_evaluation(
         routes,
-        PidAgent,
+        agent,
         tmp_path,
         LocalExecutor(1),
         config,

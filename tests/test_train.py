@@ -225,7 +225,9 @@ def test_a_run_writes_logs_checkpoints_and_a_loadable_model(data: Path, tmp_path
     assert model.config.cooperative and model.config.name == "tiny"
     with pytest.raises(FileExistsError, match="--resume"):
         train(config(data, out, max_steps=4), progress=False)
-    with pytest.raises(ValueError, match="different configuration"):
+    with pytest.raises(
+        ValueError, match=r"(?s)different configuration:\n.*  max_steps: 4 \(then\) -> 5 \(now\)"
+    ):
         train(config(data, out, max_steps=5), resume=True, progress=False)
 
 

@@ -19,9 +19,11 @@ from __future__ import annotations
 import functools
 import importlib
 import inspect
+import os
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from enum import Enum
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
@@ -130,6 +132,18 @@ class Agent(ABC):
         (naming the file or option) when the agent cannot run with them, e.g. a checkpoint that does not
         load, so that the run stops with the reason instead of crashing every route. Runs in the main
         process: keep it to what a route's setup would read anyway."""
+
+    @classmethod
+    def input_files(cls, options: Mapping[str, Any]) -> dict[str, Path]:
+        """The files and folders (checkpoints, weights) an agent made with ``cls(**options)`` loads, by
+        name: a run records a hash of their content, and ``--resume`` refuses other content. By default
+        the ``checkpoint`` option (``cmudrive eval --checkpoint``) when it names an existing path; an agent
+        that loads other files, or a default checkpoint when none is named, adds them here (other options
+        are compared as they are written, paths by name)."""
+        path = options.get("checkpoint")
+        if isinstance(path, str | os.PathLike) and Path(path).exists():
+            return {"checkpoint": Path(path).resolve()}
+        return {}
 
 
 def declared_observations(agent: Agent | type[Agent]) -> frozenset[Observation]:

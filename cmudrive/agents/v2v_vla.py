@@ -165,6 +165,16 @@ class V2VVLAAgent(Agent):
         agent = cls(**options)
         load_checkpoint(agent.checkpoint, "cpu", cls.cooperative)
 
+    @classmethod
+    def input_files(cls, options: Mapping[str, Any]) -> dict[str, Path]:
+        """The checkpoint it loads: ``checkpoint`` or the committed default."""
+        files = super().input_files(options)
+        try:
+            files["checkpoint"] = resolve_checkpoint(options.get("checkpoint"), cls.cooperative).resolve()
+        except FileNotFoundError:  # the agent's constructor says so, in every route
+            pass
+        return files
+
     def setup(self, route: RouteSetup) -> None:
         if self.model is None:
             import torch

@@ -17,9 +17,13 @@ never averaged into a summary.
 from __future__ import annotations
 
 import hashlib
+import json
 import math
+import os
 import re
+import tempfile
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from typing import Any, TypeGuard
 
 # infraction keys, as in leaderboard results files, with their penalty factor (None: not a fixed factor)
@@ -117,6 +121,9 @@ class RouteResult:
     # V2V link counters (messages, received, dropped, out_of_range, not_yet, bytes, bytes_per_message) for
     # agents that take part in V2V; None otherwise
     v2v: dict[str, float] | None = None
+    # what produced the record (the runner stamps it; bench/manifest.py): setup_sha256 (the run's setup in
+    # OUT/run.json), route_sha256 (the route as run, routes.route_sha256) and code (the code version)
+    provenance: dict[str, Any] | None = None
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
@@ -166,6 +173,22 @@ def record_stem(route_id: str) -> str:
     readable = "".join(c if c.isascii() and (c.isalnum() or c in "-_.") else "_" for c in route_id)
     digest = hashlib.sha256(route_id.encode("utf-8", "surrogatepass")).hexdigest()[:12]
     return f"{readable[:RECORD_STEM_CHARS].lstrip('.')}~{digest}"
+
+
+def write_json_atomic(path: Path, data: Any) -> None:
+    """Write JSON to ``path`` through a temporary file and a rename, with the umask's permissions."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=".tmp.", suffix=".json", dir=path.parent)  # short: ids can be long
+    try:
+        with os.fdopen(fd, "w") as fh:
+            json.dump(data, fh, indent=1)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp's 0600 would hide the results from other users
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
 
 
 # ------------------------------------------------------------------------------------- record validation

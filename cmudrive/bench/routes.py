@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import hashlib
 import math
 import os
 import re
@@ -543,6 +544,21 @@ def _route_to_xml(spec: RouteSpec) -> ET.Element:
     return elem
 
 
+def route_sha256(spec: RouteSpec) -> str:
+    """SHA-256 of a route as a route file writes it: id, town, weather, seed, every CAV's waypoints and the
+    scenarios, not the folders its town is looked up in. Equal routes have equal hashes, whichever file
+    they were read from (a run's provenance records it per route)."""
+    return hashlib.sha256(ET.tostring(_route_to_xml(spec), encoding="utf-8")).hexdigest()
+
+
+def shift_seeds(routes: Sequence[RouteSpec], seed: int) -> list[RouteSpec]:
+    """``routes`` with ``seed`` added to every route's seed (modulo ``MAX_SEED + 1``): the same routes with
+    other background traffic and pedestrians (``cmudrive eval --seed``)."""
+    if not seed:
+        return list(routes)
+    return [replace(s, seed=(s.seed + seed) % (MAX_SEED + 1)) for s in routes]
+
+
 def write_routes(
     routes: Sequence[RouteSpec], path: str | Path, comment: str | None = None, min_cavs: int = MIN_CAVS
 ) -> None:
@@ -586,7 +602,9 @@ __all__ = [
     "points_from_xml",
     "read_routes",
     "route_id_problem",
+    "route_sha256",
     "scenario_from_xml",
+    "shift_seeds",
     "start_conflicts",
     "write_routes",
 ]

@@ -2,8 +2,9 @@
 
 Layout of an output folder::
 
+    OUT/run.json             what produced the folder: the run's setup and each invocation (manifest.py)
     OUT/routes/<stem>.json   one RouteResult per finished route, written atomically as it finishes
-    OUT/results.json         {"summary": {...}, "routes": [...]}, rewritten after every route
+    OUT/results.json         {"summary": {...}, "routes": [...], "run": {...}}, rewritten after every route
     OUT/logs/<stem>.npz      replayable route logs (with --record)
 
 ``<stem>`` is ``records.record_stem(route_id)``: the id itself when it is short and file-safe, else its
@@ -13,9 +14,12 @@ work, and no two ids share a file).
 Every route runs in a fresh worker process (libsumo holds one simulation per process, and a crash of
 SUMO or of the agent's native code must not take the run down); the route loop does not know which
 executor runs it. ``resume`` skips routes whose record exists and did not crash, and runs the others
-again; a new run into a folder that already holds records is refused (resume it, or use another
-folder), and results only ever merge the records of the routes of this run's file. Ctrl-C or SIGTERM
-(``kill``, a job scheduler) stops the run and its workers; what finished is on disk.
+again, with the setup that wrote the folder only (``manifest.py``: each record is stamped with its
+setup's hash, its route's and the code version); a new run into a folder that already holds records is
+refused (resume it, or use another folder), and results only ever merge the records of the routes of
+this run's file. Ctrl-C or SIGTERM (``kill``, a job scheduler) stops the run and its workers; what
+finished is on disk. A worker and every process its agent starts end with the route, when the worker is
+killed, and when the run ends, SIGKILL of the parent included (``reaper.py``).
 
 **The local executor's watchdog.** A worker tells the parent, through shared memory, which phase it is
 in (``setup``: the agent's constructor and ``setup``; ``agent``: ``run_step``; ``sim``: the simulator;
@@ -34,12 +38,11 @@ import os
 import queue
 import resource
 import signal
-import tempfile
 import threading
 import time
 import traceback
 from collections import Counter
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, replace
 from multiprocessing import get_context
 from pathlib import Path
@@ -48,7 +51,9 @@ from typing import Any, Protocol
 from cmudrive.agents.base import Agent, AgentSetupError, agent_factory, load_agent_class
 from cmudrive.bench.compile_clock import COMPILE_PHASE
 from cmudrive.bench.evaluator import AgentCrash, EvalConfig, RouteHooks, RouteInputError, evaluate_route
+from cmudrive.bench.manifest import read_manifest, run_setup, start_run
 from cmudrive.bench.metrics import route_result, route_status, summarize
+from cmudrive.bench.reaper import hold_descendants, kill_group, kill_tree
 from cmudrive.bench.records import (
     STATUS_AGENT_CRASHED,
     STATUS_INVALID_ROUTE,
@@ -56,8 +61,9 @@ from cmudrive.bench.records import (
     STATUS_SIM_CRASHED,
     RouteResult,
     record_stem,
+    write_json_atomic,
 )
-from cmudrive.bench.routes import RouteSpec
+from cmudrive.bench.routes import RouteSpec, route_sha256, shift_seeds
 
 CRASHED = (STATUS_AGENT_CRASHED, STATUS_SIM_CRASHED)
 RERUN = (*CRASHED, STATUS_INVALID_ROUTE)  # what --resume runs again (an invalid route is checked again)
@@ -188,9 +194,10 @@ class LocalExecutor:
             while waiting or running:
                 while waiting and len(running) < self.workers:
                     task = waiting.pop()
-                    beat = ctx.RawArray("d", [time.monotonic(), 0.0])  # since when, phase index
+                    beat = ctx.RawArray("d", [time.monotonic(), 0.0, 0.0])  # since when, phase, own group
                     threads = max(1, (os.cpu_count() or 1) // self.workers)
-                    proc = ctx.Process(target=_worker, args=(task, messages, beat, threads), daemon=True)
+                    args = (task, messages, beat, threads, os.getpid())
+                    proc = ctx.Process(target=_worker, args=args, daemon=True)
                     proc.start()
                     running[task.spec.id] = _Running(proc, task, beat)
                 try:
@@ -198,12 +205,14 @@ class LocalExecutor:
                 except queue.Empty:
                     pass
                 for route_id, job in list(running.items()):
-                    verdict = job.hung() if job.proc.is_alive() else None
-                    if job.proc.is_alive() and verdict is None:
+                    alive = job.proc.is_alive()  # once: a False reaps the process, its pid is free then
+                    verdict = job.hung() if alive else None
+                    if alive and verdict is None:
                         continue
                     if verdict is not None:
-                        job.proc.kill()
+                        job.kill()
                     job.proc.join()
+                    job.kill_group()  # what a worker that died on its own left in its group
                     del running[route_id]
                     for message in _drain(messages):  # its result may still be in the queue
                         yield from self._handle(message, delivered, running, on_progress, job)
@@ -212,7 +221,7 @@ class LocalExecutor:
                         yield job.lost(verdict)
         finally:
             for job in running.values():
-                job.proc.kill()
+                job.kill()
             restore()
 
     @staticmethod
@@ -261,11 +270,21 @@ class _Running:
 
     proc: Any
     task: RouteTask
-    beat: Any  # RawArray [monotonic time of the last phase change, index into PHASES]
+    beat: Any  # RawArray [monotonic time of the last phase change, index into PHASES, 1.0: leads a group]
     partial: dict[str, Any] | None = None
 
     def phase(self) -> str:
         return PHASES[int(self.beat[1])]
+
+    def kill(self) -> None:
+        """Kill the worker, every process below it and its process group (``bench/reaper.py``)."""
+        kill_tree(self.proc.pid)
+        self.proc.kill()  # where there is no /proc to find the tree in
+        self.kill_group()
+
+    def kill_group(self) -> None:
+        if self.beat[2]:  # the worker made the group: its id is the worker's pid
+            kill_group(self.proc.pid)
 
     def hung(self) -> str | None:
         """Why the worker counts as hung now, or None."""
@@ -316,9 +335,12 @@ class _Running:
         return record
 
 
-def _worker(task: RouteTask, messages: Any, beat: Any, threads: int = 1) -> None:
+def _worker(task: RouteTask, messages: Any, beat: Any, threads: int = 1, parent: int | None = None) -> None:
     """Body of a worker process: run the route, send progress, partial scores and the result (as
     JSON-ready data), and keep ``beat`` (the phase and since when) current for the parent's watchdog.
+    The worker leads its own session and process group and holds every process the route starts, and a
+    guard kills them all with it when ``parent`` dies (``bench/reaper.py``); what is left running when
+    the route ends is killed.
     ``threads``: this worker's share of the cores, the intra-op thread count of an agent's torch/BLAS
     (set before anything imports them; a value the user exported wins), so that N workers do not each
     start a thread per core. Idle OpenMP threads spin only briefly, then sleep: the camera's numba
@@ -327,6 +349,8 @@ def _worker(task: RouteTask, messages: Any, beat: Any, threads: int = 1) -> None
     wake-up per parallel region, hundreds per forward pass of a small model: with ``GOMP_SPINCOUNT``
     (libgomp, torch's and numba's runtime on Linux; it takes precedence over the wait policy) at
     OMP_SPIN_COUNT a 16-CAV tick takes 45.9 ms instead of 62.1 ms (``benchmarks/closed_loop.py``)."""
+    if parent is not None:
+        beat[2] = float(hold_descendants(parent))  # first: the guard must not inherit the limits below
     for name in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
         os.environ.setdefault(name, str(threads))
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # other OpenMP runtimes: sleep at once
@@ -349,8 +373,11 @@ def _worker(task: RouteTask, messages: Any, beat: Any, threads: int = 1) -> None
         messages.put(("partial", task.spec.id, result.to_json()))
 
     hooks = RouteHooks(tick=tick, phase=phase, partial=partial, partial_every=PROGRESS_EVERY)
-    result = run_task(task, _Progress(), hooks)
-    messages.put(("result", task.spec.id, result.to_json()))
+    try:
+        result = run_task(task, _Progress(), hooks)
+        messages.put(("result", task.spec.id, result.to_json()))
+    finally:
+        kill_tree(os.getpid(), include_root=False)  # what the agent left running, and the guard
 
 
 def _drain(messages: Any) -> list[tuple[str, str, Any]]:
@@ -392,22 +419,6 @@ class RayExecutor:
                 yield crashed_record(task.spec, exc)
 
 
-def write_json_atomic(path: Path, data: Any) -> None:
-    """Write JSON to ``path`` through a temporary file and a rename, with the umask's permissions."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".tmp.", suffix=".json", dir=path.parent)  # short: ids can be long
-    try:
-        with os.fdopen(fd, "w") as fh:
-            json.dump(data, fh, indent=1)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp's 0600 would hide the results from other users
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-
-
 def record_path(out: Path, route_id: str) -> Path:
     return out / ROUTES_DIR / f"{record_stem(route_id)}.json"
 
@@ -415,15 +426,24 @@ def record_path(out: Path, route_id: str) -> Path:
 def finished_route_ids(out: Path, route_ids: list[str]) -> set[str]:
     """Routes of ``route_ids`` with a record that did not crash and is not invalid (what --resume
     skips)."""
-    return {rid for rid, record in _records(out, route_ids).items() if record.status not in RERUN}
+    return set(_finished(out, route_ids))
+
+
+def _finished(out: Path, route_ids: list[str]) -> dict[str, RouteResult]:
+    return {rid: record for rid, record in _records(out, route_ids).items() if record.status not in RERUN}
 
 
 def _records(out: Path, route_ids: list[str]) -> dict[str, RouteResult]:
     """The records of these routes found in ``out`` (unreadable ones are left out: they run again)."""
+    return load_records(out / ROUTES_DIR, route_ids)
+
+
+def load_records(folder: Path, route_ids: Iterable[str]) -> dict[str, RouteResult]:
+    """The records ``<stem>.json`` of these routes in ``folder`` (unreadable ones are left out)."""
     found = {}
     for rid in route_ids:
         try:
-            record = RouteResult.from_json(json.loads(record_path(out, rid).read_text()))
+            record = RouteResult.from_json(json.loads((folder / f"{record_stem(rid)}.json").read_text()))
         except (OSError, ValueError, KeyError, TypeError, RecursionError):  # (invalid records included)
             continue
         if record.route_id == rid:
@@ -432,11 +452,16 @@ def _records(out: Path, route_ids: list[str]) -> dict[str, RouteResult]:
 
 
 def merge_results(out: Path, order: list[str], expected: int | None = None) -> dict[str, Any]:
-    """Write OUT/results.json from the records of the routes ``order`` (route-file order); records of
-    other routes in the folder are not this run's and are left out."""
+    """Write OUT/results.json from the records of the routes ``order`` (route-file order) and the run
+    manifest (``run``: OUT/run.json, None without one); records of other routes in the folder are not
+    this run's and are left out."""
     records = _records(out, order)
     routes = [records[rid] for rid in order if rid in records]
-    merged = {"summary": summarize(routes, expected_routes=expected), "routes": [r.to_json() for r in routes]}
+    merged = {
+        "summary": summarize(routes, expected_routes=expected),
+        "routes": [r.to_json() for r in routes],
+        "run": read_manifest(out),
+    }
     write_json_atomic(out / "results.json", merged)
     return merged
 
@@ -477,6 +502,8 @@ def run_evaluation(
     on_progress: ProgressCallback | None = None,
     max_memory: float | None = None,
     skip_invalid: bool = False,
+    seed: int = 0,
+    routes_file: Path | None = None,
 ) -> dict[str, Any]:
     """Evaluate ``routes`` with ``agent`` and return the merged results (also in OUT/results.json).
 
@@ -484,7 +511,10 @@ def run_evaluation(
     route (``route_check.route_problems``) are checked: an agent that cannot run raises
     :class:`AgentSetupError`; invalid routes raise :class:`InvalidRoutesError` listing each, or, with
     ``skip_invalid``, get a "Failed - Invalid route" record and do not run (the summary counts them apart).
-    Without ``resume``, ``out`` must not hold route records yet (:class:`OutputFolderError`)."""
+    ``seed`` is added to every route's seed (``cmudrive eval --seed``: the same routes with other traffic);
+    ``routes_file``, where the routes came from, is recorded in OUT/run.json with its hash. Without
+    ``resume``, ``out`` must not hold route records yet (:class:`OutputFolderError`); with it, the run's
+    setup must be the one that wrote them (``SetupMismatchError``, ``bench/manifest.py``)."""
     agent_spec = agent if isinstance(agent, str) else f"{agent.__module__}:{agent.__qualname__}"
     config = config or EvalConfig()
     check_agent(load_agent_class(agent_spec), config.agent_options)  # fail fast, before any worker starts
@@ -499,18 +529,23 @@ def run_evaluation(
     if max_memory is not None and not max_memory > 0.0:
         raise ValueError(f"max_memory must be a positive number of GiB, got {max_memory}")
     invalid = _invalid_routes(routes, skip_invalid)  # every route checked before the first one runs
-    out.mkdir(parents=True, exist_ok=True)
-    skip = finished_route_ids(out, ids) if resume else set()
-    for spec in routes:
+    setup = run_setup("eval", agent_spec, config, seed=seed, max_memory=max_memory)
+    hashes = {spec.id: route_sha256(spec) for spec in routes}
+    kept = _finished(out, ids) if resume else {}
+    settings = {"executor": type(executor).__name__, "workers": getattr(executor, "workers", None)}
+    run = start_run(out, setup, hashes, resume, kept, len(old), settings, routes_file)
+    specs = [s for s in shift_seeds(routes, seed) if s.id not in kept]
+    for spec in specs:
         if spec.id in invalid:
             record = crashed_record(spec, RouteInputError(invalid[spec.id]))
             record.error = invalid[spec.id]  # the problem, no traceback: nothing ran
+            record.provenance = run.stamp(hashes[spec.id])
             write_json_atomic(record_path(out, spec.id), record.to_json())
             if on_result is not None:
                 on_result(record)
-    skip |= set(invalid)
-    tasks = [RouteTask(spec, agent_spec, config, max_memory) for spec in routes if spec.id not in skip]
+    tasks = [RouteTask(spec, agent_spec, config, max_memory) for spec in specs if spec.id not in invalid]
     for result in executor.run(tasks, on_progress):
+        result.provenance = run.stamp(hashes[result.route_id])
         write_json_atomic(record_path(out, result.route_id), result.to_json())
         merge_results(out, ids, expected=len(routes))
         if on_result is not None:
@@ -530,6 +565,7 @@ __all__ = [
     "check_routes",
     "crashed_record",
     "finished_route_ids",
+    "load_records",
     "merge_results",
     "run_evaluation",
     "run_task",

@@ -23,13 +23,21 @@ import pyarrow as pa
 from cmudrive.agents.base import Agent
 from cmudrive.agents.expert import ExpertAgent
 from cmudrive.bench.evaluator import EvalConfig, RouteHooks, evaluate_route
+from cmudrive.bench.manifest import run_setup, start_run
 from cmudrive.bench.observe import SensorConfig
 from cmudrive.bench.records import STATUS_AGENT_CRASHED, STATUS_SIM_CRASHED, RouteResult, record_stem
-from cmudrive.bench.routes import RouteSpec, read_routes
-from cmudrive.bench.runner import Executor, ProgressCallback, RouteTask, check_routes, write_json_atomic
+from cmudrive.bench.routes import RouteSpec, read_routes, route_sha256
+from cmudrive.bench.runner import (
+    Executor,
+    ProgressCallback,
+    RouteTask,
+    check_routes,
+    load_records,
+    write_json_atomic,
+)
 from cmudrive.data.collector import SAMPLE_EVERY, CollectingAgent, RouteInfo
 from cmudrive.data.schema import features
-from cmudrive.data.shards import RECORDS_DIR, ShardWriter, shard_complete, shard_path
+from cmudrive.data.shards import MANIFEST, RECORDS_DIR, ShardWriter, shard_complete, shard_path
 
 EXPERT = "cmudrive.agents.expert:ExpertAgent"
 BENCHMARK_SETS = ("cmudrive220",)  # cmudrive44's routes are cmudrive220 routes
@@ -136,9 +144,12 @@ def collect(
     sample_every: int = SAMPLE_EVERY,
     on_result: Callable[[RouteResult, bool], None] | None = None,
     on_progress: ProgressCallback | None = None,
+    routes_file: Path | None = None,
 ) -> CollectSummary:
     """Collect shards for ``routes`` into ``out`` (module docstring). ``on_result(record, shard_written)``
-    hears of every route as it finishes. Without ``resume``, ``out`` must hold no shard yet."""
+    hears of every route as it finishes. Without ``resume``, ``out`` must hold no shard yet; with it, the
+    setup must be the one that wrote them (``OUT/.run.json``, ``bench/manifest.py``); ``routes_file``,
+    where the routes came from, is recorded there."""
     check_routes(routes)
     ids = [spec.id for spec in routes]
     if not allow_benchmark:
@@ -150,13 +161,18 @@ def collect(
             f"{out} already holds {len(done)} shard(s) of these routes: continue with --resume, "
             "or write to another folder"
         )
-    out.mkdir(parents=True, exist_ok=True)
     config = config or EvalConfig()
+    setup = run_setup("collect", EXPERT, config, job={"sample_every": sample_every})
+    hashes = {spec.id: route_sha256(spec) for spec in routes}
+    kept = load_records(out / RECORDS_DIR, done)
+    settings = {"executor": type(executor).__name__, "workers": getattr(executor, "workers", None)}
+    run = start_run(out, setup, hashes, resume, kept, len(done), settings, routes_file, MANIFEST)
     schema = features(config.sensors.occupancy).arrow_schema
     job = ShardJob(str(out.resolve()), schema, sample_every, config.sensors)
     tasks = [RouteTask(s, EXPERT, config, job=job) for s in routes if s.id not in done]
     summary = CollectSummary(skipped=[i for i in ids if i in done])
     for result in executor.run(tasks, on_progress):
+        result.provenance = run.stamp(hashes[result.route_id])
         write_json_atomic(out / RECORDS_DIR / f"{record_stem(result.route_id)}.json", result.to_json())
         written = shard_complete(shard_path(out, result.route_id))
         if written:

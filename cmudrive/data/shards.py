@@ -36,6 +36,7 @@ if TYPE_CHECKING:
 
 SHARD_SUFFIX = ".parquet"
 RECORDS_DIR = ".routes"  # hidden: datasets skips it (it does not skip "_" names)
+MANIFEST = ".run.json"  # what collected the folder (bench/manifest.py); hidden, as datasets reads the rest
 ROW_GROUP = 256  # [rows] per Parquet row group (a flush of the writer)
 COMPRESSION = "zstd"  # Parquet codec: the occupancy arrays are mostly zeros
 COMPRESSION_LEVEL = 3  # zstd level (measured: level 1 is no faster here and 6 % larger)

@@ -41,6 +41,7 @@ from cmudrive.model.augment import YawAugment, rotate_sample
 from cmudrive.model.config import ModelConfig, get_config
 from cmudrive.model.modeling import V2VVLA
 from cmudrive.model.processor import VLABatch
+from cmudrive.provenance import describe_diff, settings_diff
 
 # SimLingo's 3e-5 is a fine-tuning rate for a pretrained 1B model (LoRA on the LLM). tiny and small start
 # from random weights: 1e-3 is the usual rate for transformers of a few million parameters trained from
@@ -429,13 +430,9 @@ def _load_checkpoint(accelerator: Any, path: Path) -> TrainState:
 def _check_out(config: TrainConfig, out: Path, resume: bool) -> None:
     saved = out / "train_config.json"
     if resume and saved.is_file():
-        old = json.loads(saved.read_text())
-        new = json.loads(json.dumps(config.to_dict()))  # tuples as lists, as in the file
-        diff = sorted(
-            k for k in old.keys() | new.keys() if k not in RESUME_MAY_CHANGE and old.get(k) != new.get(k)
-        )
+        diff = settings_diff(json.loads(saved.read_text()), config.to_dict(), ignore=RESUME_MAY_CHANGE)
         if diff:
-            raise ValueError(f"{out}: --resume with a different configuration ({', '.join(diff)})")
+            raise ValueError(f"{out}: --resume with a different configuration:\n{describe_diff(diff)}")
     elif not resume and (out / CHECKPOINTS).exists():
         raise FileExistsError(f"{out} already holds a run: continue it with --resume or pick another --out")
     out.mkdir(parents=True, exist_ok=True)
