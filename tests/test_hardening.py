@@ -102,7 +102,7 @@ def test_agent_hung_in_native_code_is_killed_and_keeps_its_scores(tmp_path: Path
     started = time.monotonic()
     merged = _run(tmp_path, HangsInNativeCode)
     (route,) = merged["routes"]
-    assert time.monotonic() - started < 60.0  # killed after 1 s + 5 s grace, not after the 120 s sleep
+    assert time.monotonic() - started < 100.0  # killed after 1 s + 5 s grace, not after the 120 s sleep
     assert route["status"] == STATUS_AGENT_CRASHED and "run_step made no progress" in route["error"]
     assert [c["status"] for c in route["cavs"]] == [STATUS_AGENT_CRASHED] * 2
     assert route["ticks"] >= 20 and route["route_completion"] > 0.0  # the scores sent before the hang
