@@ -509,7 +509,17 @@ def _route_progress(path: Path, total: int, tick_cap: int) -> Iterator[tuple[Any
     no bars, one plain line after each finished route with the same numbers (``RunProgress``)."""
     import time
 
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TaskID, TextColumn
+    from rich.markup import escape
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        ProgressColumn,
+        Task,
+        TaskID,
+        TextColumn,
+    )
+    from rich.text import Text
 
     from cmudrive.bench.progress import RunProgress
 
@@ -522,33 +532,32 @@ def _route_progress(path: Path, total: int, tick_cap: int) -> Iterator[tuple[Any
 
         yield state.tick, done_plain
         return
-    columns = (
-        TextColumn("{task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TextColumn("{task.fields[stats]}"),
-    )
-    with Progress(*columns, console=console) as progress:
-        overall = progress.add_task(f"{total} routes from {path.name}", total=total, stats="")
-        ticks: dict[str, TaskID] = {}
 
-        def show_stats() -> None:
-            stats = state.describe(time.monotonic()).partition(" routes, ")[2]
-            progress.update(overall, stats=stats)
+    class RunColumn(ProgressColumn):
+        """Elapsed time, ETA and simulated-time ratio of the run, on the overall bar, at each refresh."""
+
+        def render(self, task: Task) -> Text:
+            shown = (
+                state.describe(time.monotonic()).partition(" routes, ")[2] if task.fields.get("run") else ""
+            )
+            return Text(shown)
+
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), RunColumn())
+    with Progress(*columns, console=console) as progress:
+        overall = progress.add_task(escape(f"{total} routes from {path.name}"), total=total, run=True)
+        ticks: dict[str, TaskID] = {}
 
         def on_progress(route_id: str, tick: int) -> None:
             state.tick(route_id, tick)
             if route_id not in ticks:
-                ticks[route_id] = progress.add_task(f"  route {route_id} [ticks]", total=tick_cap, stats="")
+                ticks[route_id] = progress.add_task(escape(f"  route {route_id} [ticks]"), total=tick_cap)
             progress.update(ticks[route_id], completed=tick)
-            show_stats()
 
         def done(route_id: str, ticks_run: int) -> None:
             state.finish(route_id, ticks_run)
             progress.advance(overall)
             if route_id in ticks:
                 progress.remove_task(ticks.pop(route_id))
-            show_stats()
 
         yield on_progress, done
 
@@ -911,7 +920,7 @@ def _route_line(r: dict[str, Any]) -> str:
     """One route's results on one line, every field, the whole failure reason (logs)."""
     why = _failures(r)
     return (
-        f"route {r['route_id']}: {r.get('scenario_type') or '-'}, {r['town']}, {r['weather']}, "
+        f"route {r['route_id']} ({r.get('scenario_type') or 'no scenario'}): {r['town']}, {r['weather']}, "
         f"{r['num_cavs']} CAVs, {r['status']}, RC {r['route_completion']:.1f}, "
         f"IS {r['infraction_score']:.3f}, DS {r['driving_score']:.1f}" + (f"; why: {why}" if why else "")
     )

@@ -104,8 +104,9 @@ def merged_with_a_long_reason() -> dict[str, object]:
 def test_results_in_a_log_are_plain_lines_with_the_whole_reason(capsys: pytest.CaptureFixture[str]) -> None:
     cli._print_results(merged_with_a_long_reason())
     out = capsys.readouterr().out
-    line = next(x for x in out.splitlines() if x.startswith("route BlockedIntersection_2:"))
-    assert "Town03, HardRainNoon, 8 CAVs, Failed - Agent got blocked, RC 12.5, IS 0.700, DS 8.8" in line
+    line = next(x for x in out.splitlines() if x.startswith("route BlockedIntersection_2 "))
+    fields = "Town03, HardRainNoon, 8 CAVs, Failed - Agent got blocked, RC 12.5, IS 0.700, DS 8.8"
+    assert f"(BlockedIntersection): {fields}" in line
     assert line.endswith("; ".join(f"cav{i}: got blocked, red_light" for i in range(8)))
     assert "…" not in out and "┃" not in out
 
