@@ -204,9 +204,11 @@ def load_agent_class(spec: str) -> type[Agent]:
     """``"package.module:ClassName"`` or a bundled agent's short name -> the class (clear errors for each
     way this can fail: no such module, no such class in it (with close names), not an Agent subclass).
 
-    The current folder is on the import path first, as ``python -m`` puts it, so that
+    For a class path the current folder goes first on the import path, as ``python -m`` puts it, so that
     ``cmudrive eval --agent my_pkg.my_agent:MyAgent`` finds ``./my_pkg`` from the installed ``cmudrive``
-    command too (route workers inherit the parent's path)."""
+    command too (route workers inherit the parent's path; a folder without ``__init__.py`` never hides an
+    installed package of its name, a module file in the current folder does, as under ``python -m``)."""
+    bundled = spec in BUNDLED_AGENTS
     spec = BUNDLED_AGENTS.get(spec, spec)
     module_name, sep, class_name = spec.partition(":")
     if not sep or not module_name or not class_name:
@@ -214,7 +216,8 @@ def load_agent_class(spec: str) -> type[Agent]:
         raise AgentSetupError(
             f"agent {spec!r} must look like 'package.module:ClassName' or be one of {names}"
         )
-    _put_cwd_on_path()
+    if not bundled:  # a bundled agent needs no user folder on the path (nothing of it can shadow ours)
+        _put_cwd_on_path()
     try:
         module = importlib.import_module(module_name)
     except ImportError as exc:
