@@ -36,6 +36,15 @@ data_app = typer.Typer(
 app.add_typer(data_app, name="data")
 console = Console()
 err_console = Console(stderr=True)
+LOG_WIDTH = 200  # [columns] of tables written to a file or a pipe (rich's default there: 80)
+
+
+@app.callback()
+def _log_width() -> None:
+    """Tables as wide as a log needs when the output is not a terminal (cluster jobs write to files)."""
+    for c in (console, err_console):
+        if not c.is_terminal:
+            c.width = LOG_WIDTH
 
 
 MAX_WORKERS = 4  # default route workers at most (each holds a SUMO world, ~300 MB)
@@ -229,17 +238,62 @@ def sim_demo(
         console.print(f"wrote {output}")
 
 
-@routes_app.command("generate", context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
-def routes_generate(ctx: typer.Context) -> None:
-    """Scenario-free multi-CAV routes: cmudrive routes generate -o FILE [-s SEED] [-l MIN MAX] [-p PREFIX]
-    [-c CAVS] [-w WEATHER] TOWN[:CAVS[:WEATHER]] ..."""
+@routes_app.command("generate")
+def routes_generate(
+    output: Annotated[Path, typer.Option("-o", "--output", help="route file to write")],
+    entries: Annotated[
+        list[str] | None,
+        typer.Argument(
+            metavar="TOWN[:CAVS[:WEATHER]]",
+            help="one scenario-free route per entry (not with --benchmark)",
+        ),
+    ] = None,
+    benchmark: Annotated[
+        str | None,
+        typer.Option(
+            "-b", "--benchmark", help="write a named benchmark set instead: cmudrive220, cmudrive44, training"
+        ),
+    ] = None,
+    seed: Annotated[int, typer.Option("-s", "--seed", help="seed of the generated routes")] = 0,
+    length: Annotated[
+        tuple[float, float], typer.Option("-l", "--length", help="CAV 0's route length MIN MAX [m]")
+    ] = (200.0, 400.0),
+    id_prefix: Annotated[
+        str, typer.Option("-p", "--id-prefix", help="route ids are PREFIX_00, PREFIX_01, ...")
+    ] = "route",
+    cavs: Annotated[int, typer.Option("-c", "--cavs", help="CAVs of entries that do not name a number")] = 4,
+    weather: Annotated[
+        str, typer.Option("-w", "--weather", help="weather of entries that do not name one")
+    ] = "ClearNoon",
+) -> None:
+    """Multi-CAV routes: scenario-free ones (one per TOWN entry, e.g. downtown:4 suburb:3:ClearNight), or a
+    benchmark set (-b NAME); the command is recorded in the file's header."""
     from cmudrive.bench.route_gen import main as generate_main
 
+    argv = ["generate", *(entries or ()), "-o", str(output), "-s", str(seed), "-p", id_prefix]
+    argv += ["-l", repr(length[0]), repr(length[1]), "-c", str(cavs), "-w", weather]
+    argv += ["-b", benchmark] if benchmark is not None else []
     try:
-        code = generate_main(["generate", *ctx.args])
+        code = generate_main(argv)
     except (MapError, ValueError) as exc:
         _fail(exc)
     raise typer.Exit(code=code)
+
+
+@routes_app.command("list")
+def routes_list() -> None:
+    """The committed route sets: name, routes, CAVs per route and what each is for (--routes NAME)."""
+    from cmudrive.bench.route_sets import ROUTE_SET_DIR, ROUTE_SET_PURPOSES, route_set_names
+    from cmudrive.bench.routes import read_routes
+
+    table = Table(title=f"committed route sets ({ROUTE_SET_DIR})")
+    for col in ("name", "routes", "CAVs", "what for"):
+        table.add_column(col, justify="right" if col in ("routes", "CAVs") else "left")
+    for name in route_set_names():
+        specs = read_routes(ROUTE_SET_DIR / f"{name}.xml")
+        cavs = [len(s.cavs) for s in specs]
+        table.add_row(name, str(len(specs)), f"{min(cavs)}-{max(cavs)}", ROUTE_SET_PURPOSES.get(name, ""))
+    console.print(table)
 
 
 @routes_app.command("check")
@@ -356,24 +410,38 @@ def routes_show(
 
 
 def _routes_path(name_or_path: str) -> Path:
-    path = Path(name_or_path)
-    if path.suffix == ".xml" or path.exists():
-        return path
-    return Path(__file__).resolve().parent / "assets" / "routes" / f"{name_or_path}.xml"
+    """The route file a ``--routes`` value names (``cmudrive.bench.route_sets``: set names win)."""
+    from cmudrive.bench.route_sets import RouteSelectionError, resolve_routes
+
+    try:
+        return resolve_routes(name_or_path)
+    except RouteSelectionError as exc:
+        _fail(exc)
+        raise  # unreachable: _fail exits
 
 
 def _read_specs(
-    routes: str, town_dir: list[Path] | None, limit: int | None = None, refuse_invalid: bool = False
+    routes: str,
+    town_dir: list[Path] | None,
+    limit: int | None = None,
+    refuse_invalid: bool = False,
+    subset: str | None = None,
 ) -> tuple[Path, list[Any]]:
-    """The valid routes of a route file or set (invalid ones reported and skipped, at most ``limit``),
-    with the extra town folders; exits naming the file when none is left, or, with ``refuse_invalid``,
-    when any route cannot be read (every one listed)."""
-    from cmudrive.bench.routes import read_routes
+    """The valid routes of a route file or set (invalid ones reported and skipped), only those ``subset``
+    picks (``--routes-subset``), then at most ``limit``, with the extra town folders; exits naming the file
+    when none is left, or, with ``refuse_invalid``, when any picked route cannot be read (every one
+    listed)."""
+    from cmudrive.bench.route_sets import select_subset
+    from cmudrive.bench.routes import read_routes, route_ids
 
     path = _routes_path(routes)
     try:
         specs, invalid = read_routes(path, strict=False)
-    except (OSError, ValueError) as exc:
+        if subset is not None:
+            picked = set(select_subset(route_ids(path), subset, str(path)))
+            specs = [s for s in specs if s.id in picked]
+            invalid = [(route_id, message) for route_id, message in invalid if route_id in picked]
+    except (OSError, ValueError) as exc:  # RouteSelectionError too
         _fail(exc)
     if invalid and refuse_invalid:
         lines = "".join(f"\n  route {route_id}: {message}" for route_id, message in invalid)
@@ -435,21 +503,58 @@ def _warnings_to_stderr() -> Iterator[None]:
 
 @contextlib.contextmanager
 def _route_progress(path: Path, total: int, tick_cap: int) -> Iterator[tuple[Any, Any]]:
-    """Progress bars: one over the routes, one per running route over its ticks. Yields
-    (on_progress(route_id, tick), done(route_id)): ``done`` advances the overall bar."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TaskID, TextColumn, TimeElapsedColumn
+    """Progress of a run, yielding (on_progress(route_id, tick), done(route_id, ticks)); call ``done``
+    after printing a route's line. In a terminal: bars, one over the routes (with elapsed time, ETA and
+    simulated seconds per wall second) and one per running route over its ticks. Elsewhere (a log file):
+    no bars, one plain line after each finished route with the same numbers (``RunProgress``)."""
+    import time
 
-    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
+    from rich.markup import escape
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        ProgressColumn,
+        Task,
+        TaskID,
+        TextColumn,
+    )
+    from rich.text import Text
+
+    from cmudrive.bench.progress import RunProgress
+
+    state = RunProgress(total)
+    if not console.is_terminal:
+
+        def done_plain(route_id: str, ticks: int) -> None:
+            state.finish(route_id, ticks)
+            console.print(f"progress: {state.describe(time.monotonic())}", soft_wrap=True, highlight=False)
+
+        yield state.tick, done_plain
+        return
+
+    class RunColumn(ProgressColumn):
+        """Elapsed time, ETA and simulated-time ratio of the run, on the overall bar, at each refresh."""
+
+        def render(self, task: Task) -> Text:
+            shown = (
+                state.describe(time.monotonic()).partition(" routes, ")[2] if task.fields.get("run") else ""
+            )
+            return Text(shown)
+
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), RunColumn())
     with Progress(*columns, console=console) as progress:
-        overall = progress.add_task(f"{total} routes from {path.name}", total=total)
+        overall = progress.add_task(escape(f"{total} routes from {path.name}"), total=total, run=True)
         ticks: dict[str, TaskID] = {}
 
         def on_progress(route_id: str, tick: int) -> None:
+            state.tick(route_id, tick)
             if route_id not in ticks:
-                ticks[route_id] = progress.add_task(f"  route {route_id} [ticks]", total=tick_cap)
+                ticks[route_id] = progress.add_task(escape(f"  route {route_id} [ticks]"), total=tick_cap)
             progress.update(ticks[route_id], completed=tick)
 
-        def done(route_id: str) -> None:
+        def done(route_id: str, ticks_run: int) -> None:
+            state.finish(route_id, ticks_run)
             progress.advance(overall)
             if route_id in ticks:
                 progress.remove_task(ticks.pop(route_id))
@@ -465,6 +570,13 @@ def evaluate(
             help="route file (.xml) or a committed route set: cmudrive44, cmudrive220, smoke, training"
         ),
     ] = "cmudrive44",
+    routes_subset: Annotated[
+        str | None,
+        typer.Option(
+            help="only these routes of the file: ids, 0-based indices and inclusive index ranges, "
+            "comma-separated (Accident_0,HighwayCutIn_2 or 0-5 or 3,7,12; an exact id wins)"
+        ),
+    ] = None,
     agent: Annotated[
         str,
         typer.Option(
@@ -553,7 +665,7 @@ def evaluate(
     from cmudrive.sensors import DetectionNoise
     from cmudrive.v2v import LinkConfig
 
-    path, specs = _read_specs(routes, town_dir, refuse_invalid=not skip_invalid)
+    path, specs = _read_specs(routes, town_dir, refuse_invalid=not skip_invalid, subset=routes_subset)
     try:
         sensors = SensorConfig(
             noise=DetectionNoise(*detection_noise),
@@ -582,15 +694,16 @@ def evaluate(
     with _route_progress(path, len(specs), tick_cap) as (on_progress, done):
 
         def on_result(result: RouteResult) -> None:
-            done(result.route_id)
             console.print(
-                f"route {result.route_id}: {result.status}, DS {result.driving_score:.1f} "
+                f"route {escape(result.route_id)}: {result.status}, DS {result.driving_score:.1f} "
                 f"(RC {result.route_completion:.1f}, IS {result.infraction_score:.2f}), "
-                f"{result.wall_time:.0f} s"
+                f"{result.ticks} ticks, {result.wall_time:.0f} s",
+                soft_wrap=True,
             )
             if result.error:  # why it crashed, in one line: the error's last line
                 last = result.error.strip().splitlines()[-1] if result.error.strip() else ""
-                err_console.print(f"  [red]{escape(last)}[/]", highlight=False)
+                err_console.print(f"  [red]{escape(last)}[/]", highlight=False, soft_wrap=True)
+            done(result.route_id, result.ticks)
 
         try:
             with _warnings_to_stderr():
@@ -622,6 +735,13 @@ def data_collect(
     routes: Annotated[
         str, typer.Option(help="route file (.xml) or a committed route set (training; never the benchmark's)")
     ] = "training",
+    routes_subset: Annotated[
+        str | None,
+        typer.Option(
+            help="only these routes of the file: ids, 0-based indices and inclusive index ranges, "
+            "comma-separated (Accident_0,HighwayCutIn_2 or 0-5 or 3,7,12; an exact id wins)"
+        ),
+    ] = None,
     out: Annotated[Path, typer.Option(help="dataset folder: one <route>.parquet shard per route")] = Path(
         "data/train"
     ),
@@ -659,7 +779,7 @@ def data_collect(
     from cmudrive.data import collect, shard_path
     from cmudrive.data.shards import shard_rows
 
-    path, specs = _read_specs(routes, town_dir, limit_routes)
+    path, specs = _read_specs(routes, town_dir, limit_routes, subset=routes_subset)
     try:
         config = EvalConfig(tick_cap=tick_cap, step_timeout=step_timeout)
     except ValueError as exc:
@@ -670,16 +790,21 @@ def data_collect(
 
         def on_result(result: RouteResult, written: bool) -> None:
             nonlocal samples
-            done(result.route_id)
             if written:
                 rows = shard_rows(shard_path(out, result.route_id))
                 samples += rows
                 console.print(
-                    f"route {result.route_id}: {rows} samples, {result.ticks} ticks, {result.wall_time:.0f} s"
+                    f"route {escape(result.route_id)}: {rows} samples, {result.ticks} ticks, "
+                    f"{result.wall_time:.0f} s",
+                    soft_wrap=True,
                 )
             else:
                 last = (result.error or "").strip().splitlines()[-1:] or [result.status]
-                err_console.print(f"[red]route {result.route_id} failed, no shard:[/] {escape(last[0])}")
+                err_console.print(
+                    f"[red]route {escape(result.route_id)} failed, no shard:[/] {escape(last[0])}",
+                    soft_wrap=True,
+                )
+            done(result.route_id, result.ticks)
 
         try:
             with _warnings_to_stderr():
@@ -791,7 +916,18 @@ def _failures(route: dict[str, Any]) -> str:
     return "; ".join(parts)
 
 
-def _print_results(merged: dict[str, Any]) -> None:
+def _route_line(r: dict[str, Any]) -> str:
+    """One route's results on one line, every field, the whole failure reason (logs)."""
+    why = _failures(r)
+    return (
+        f"route {r['route_id']} ({r.get('scenario_type') or 'no scenario'}): {r['town']}, {r['weather']}, "
+        f"{r['num_cavs']} CAVs, {r['status']}, RC {r['route_completion']:.1f}, "
+        f"IS {r['infraction_score']:.3f}, DS {r['driving_score']:.1f}" + (f"; why: {why}" if why else "")
+    )
+
+
+def _results_table(merged: dict[str, Any]) -> Table:
+    """A row per route (up to ``PER_ROUTE_TABLE_MAX`` routes) or per scenario type, with why routes failed."""
     routes = merged["routes"]
     if len(routes) <= PER_ROUTE_TABLE_MAX:
         table = Table(title="CMU-Drive results")
@@ -828,7 +964,24 @@ def _print_results(merged: dict[str, Any]) -> None:
             sr = f"{scores['success_rate']:.0f}" if scores else "-"
             why = " | ".join(f"{r['route_id']}: {_failures(r)}" for r in group if not r["success"])
             table.add_row(name, str(len(group)), ds, sr, why)
-    console.print(table)
+    return table
+
+
+def _print_results(merged: dict[str, Any]) -> None:
+    """The results of a run: a table in a terminal; where stdout is not one (a log file), plain lines that
+    no width cuts: one per route with every field and why it failed, then one per scenario type."""
+    routes = merged["routes"]
+    if console.is_terminal:
+        console.print(_results_table(merged))
+    else:
+        for r in routes:
+            console.print(_route_line(r), soft_wrap=True, highlight=False, markup=False)
+        if len(routes) > PER_ROUTE_TABLE_MAX:
+            by_type = merged["summary"]["by_scenario_type"]
+            for name in dict.fromkeys(str(r.get("scenario_type") or "-") for r in routes):
+                if name in by_type:
+                    ds, sr = by_type[name]["driving_score"], by_type[name]["success_rate"]
+                    console.print(f"scenario type {name}: DS {ds:.1f}, SR {sr:.0f} %", soft_wrap=True)
     s = merged["summary"]
     invalid = s.get("num_invalid", 0)
     console.print(
@@ -863,7 +1016,7 @@ def train_model(
     standing_keep: Annotated[
         float,
         typer.Option(
-            help="share of the standing rows kept (below 0.1 m/s and still there 2.5 s later; 47 %% of "
+            help="share of the standing rows kept (below 0.1 m/s and still there 2.5 s later; 47 % of "
             "the collection); fewer teach a model fed its speed to start again"
         ),
     ] = 1.0,
@@ -871,7 +1024,7 @@ def train_model(
         int,
         typer.Option(
             min=1,
-            help="times each row with a communication sentence (1.2 %% of the collection) is seen per epoch",
+            help="times each row with a communication sentence (1.2 % of the collection) is seen per epoch",
         ),
     ] = 1,
     speed_input: Annotated[

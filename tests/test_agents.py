@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
@@ -60,6 +62,28 @@ def test_agents_load_by_import_path_with_clear_errors() -> None:
         AgentSetupError, match=r"'Controls' in cmudrive\.sim\.dynamics is not a cmudrive Agent"
     ):
         load_agent_class("cmudrive.sim.dynamics:Controls")
+
+
+def test_a_class_name_typo_says_there_is_no_such_class() -> None:
+    with pytest.raises(
+        AgentSetupError, match=r"no class 'PidAgnt' in module cmudrive\.agents\.pid.*PidAgent"
+    ):
+        load_agent_class("cmudrive.agents.pid:PidAgnt")
+    with pytest.raises(AgentSetupError, match="not a cmudrive Agent subclass"):
+        load_agent_class("cmudrive.agents.pid:np")  # exists, but is no agent
+
+
+def test_the_current_folder_is_on_the_agent_import_path(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    pkg = tmp_path / "cliux_pkg_here"
+    pkg.mkdir()
+    (pkg / "agent.py").write_text("from cmudrive.agents import PidAgent\n\nclass Mine(PidAgent):\n    pass\n")
+    monkeypatch.chdir(tmp_path)
+    keep = [p for p in sys.path if p and Path(p).resolve() != tmp_path.resolve()]
+    monkeypatch.setattr(sys, "path", keep)  # as under the console script: no '' and no cwd
+    assert load_agent_class("cliux_pkg_here.agent:Mine").__name__ == "Mine"
+    assert sys.path[0] == str(tmp_path)
 
 
 def test_sparse_plan_keeps_manoeuvres_and_spacing(mini: RoadMap) -> None:

@@ -16,10 +16,12 @@ CARLA's (steer + = right).
 
 from __future__ import annotations
 
+import difflib
 import functools
 import importlib
 import inspect
 import os
+import sys
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from enum import Enum
@@ -200,7 +202,13 @@ BUNDLED_AGENTS: dict[str, str] = {
 
 def load_agent_class(spec: str) -> type[Agent]:
     """``"package.module:ClassName"`` or a bundled agent's short name -> the class (clear errors for each
-    way this can fail)."""
+    way this can fail: no such module, no such class in it (with close names), not an Agent subclass).
+
+    For a class path the current folder goes first on the import path, as ``python -m`` puts it, so that
+    ``cmudrive eval --agent my_pkg.my_agent:MyAgent`` finds ``./my_pkg`` from the installed ``cmudrive``
+    command too (route workers inherit the parent's path; a folder without ``__init__.py`` never hides an
+    installed package of its name, a module file in the current folder does, as under ``python -m``)."""
+    bundled = spec in BUNDLED_AGENTS
     spec = BUNDLED_AGENTS.get(spec, spec)
     module_name, sep, class_name = spec.partition(":")
     if not sep or not module_name or not class_name:
@@ -208,16 +216,37 @@ def load_agent_class(spec: str) -> type[Agent]:
         raise AgentSetupError(
             f"agent {spec!r} must look like 'package.module:ClassName' or be one of {names}"
         )
+    if not bundled:  # a bundled agent needs no user folder on the path (nothing of it can shadow ours)
+        _put_cwd_on_path()
     try:
         module = importlib.import_module(module_name)
     except ImportError as exc:
         raise AgentSetupError(f"agent {spec!r}: cannot import module {module_name!r}: {exc}") from exc
-    cls = getattr(module, class_name, None)
-    if not isinstance(cls, type) or not issubclass(cls, Agent):
+    if not hasattr(module, class_name):
+        agents = {n: v for n, v in vars(module).items() if isinstance(v, type) and issubclass(v, Agent)}
+        classes = [n for n, v in agents.items() if v is not Agent]
+        close = difflib.get_close_matches(class_name, classes, n=3, cutoff=0.5)
+        hint = f"; did you mean {' or '.join(close)}?" if close else ""
+        known = f" (Agent classes there: {', '.join(sorted(classes))})" if classes else ""
         raise AgentSetupError(
-            f"agent {spec!r}: {class_name!r} in {module_name} is not a cmudrive Agent subclass"
+            f"agent {spec!r}: there is no class {class_name!r} in module {module_name} "
+            f"({getattr(module, '__file__', None) or 'a namespace package'}){hint}{known}"
+        )
+    cls = getattr(module, class_name)
+    if not isinstance(cls, type) or not issubclass(cls, Agent):
+        what = f"a {type(cls).__name__}" if not isinstance(cls, type) else "a class that does not subclass it"
+        raise AgentSetupError(
+            f"agent {spec!r}: {class_name!r} in {module_name} is not a cmudrive Agent subclass ({what}; "
+            "subclass cmudrive.agents.Agent)"
         )
     return cls
+
+
+def _put_cwd_on_path() -> None:
+    """The current folder first on ``sys.path`` (``python -m`` does this; a console script does not)."""
+    cwd = os.getcwd()
+    if not any(os.path.abspath(p or os.curdir) == cwd for p in sys.path):
+        sys.path.insert(0, cwd)
 
 
 def agent_factory(cls: type[Agent], options: Mapping[str, Any] | None = None) -> Callable[[], Agent]:

@@ -3,6 +3,7 @@
 Typical use::
 
     cmudrive eval --routes smoke --agent cmudrive.agents.pid:PidAgent --out out/eval --workers 2
+    cmudrive eval --routes cmudrive44 --routes-subset 0-5 --out out/first6
     cmudrive report out/eval -o out/report
 
 or in Python: ``read_routes`` -> ``run_evaluation(routes, agent, out, LocalExecutor(2))``.
@@ -11,8 +12,24 @@ or in Python: ``read_routes`` -> ``run_evaluation(routes, agent, out, LocalExecu
 from cmudrive.bench.criteria import CriteriaConfig, RouteCriteria
 from cmudrive.bench.evaluator import EvalConfig, RouteInputError, evaluate_route
 from cmudrive.bench.metrics import ABILITIES, route_result, route_scores, summarize
+from cmudrive.bench.progress import RunProgress
 from cmudrive.bench.records import INFRACTION_KEYS, PENALTIES, CavResult, Infraction, RouteResult
-from cmudrive.bench.routes import CavSpec, RouteSpec, RouteSpecError, ScenarioSpec, read_routes, write_routes
+from cmudrive.bench.route_sets import (
+    ROUTE_SET_PURPOSES,
+    RouteSelectionError,
+    resolve_routes,
+    route_set_names,
+    select_subset,
+)
+from cmudrive.bench.routes import (
+    CavSpec,
+    RouteSpec,
+    RouteSpecError,
+    ScenarioSpec,
+    read_routes,
+    route_ids,
+    write_routes,
+)
 from cmudrive.bench.runner import LocalExecutor, RayExecutor, run_evaluation
 from cmudrive.bench.scenario_types import SCENARIO_TYPES
 
@@ -20,6 +37,7 @@ __all__ = [
     "ABILITIES",
     "INFRACTION_KEYS",
     "PENALTIES",
+    "ROUTE_SET_PURPOSES",
     "SCENARIO_TYPES",
     "CavResult",
     "CavSpec",
@@ -31,14 +49,20 @@ __all__ = [
     "RouteCriteria",
     "RouteInputError",
     "RouteResult",
+    "RouteSelectionError",
     "RouteSpec",
     "RouteSpecError",
+    "RunProgress",
     "ScenarioSpec",
     "evaluate_route",
     "read_routes",
+    "resolve_routes",
+    "route_ids",
     "route_result",
     "route_scores",
+    "route_set_names",
     "run_evaluation",
+    "select_subset",
     "summarize",
     "write_routes",
 ]

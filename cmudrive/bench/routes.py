@@ -473,6 +473,19 @@ def parse_xml(path: str | Path, root_tag: str) -> ET.Element:
     return root
 
 
+def _reported_id(elem: ET.Element, k: int) -> str:
+    """The id a route is reported under: its own, or ``#k`` (1-based position) when it has none or a bad
+    one."""
+    raw_id = elem.get("id")
+    return raw_id if raw_id and route_id_problem(raw_id) is None else f"#{k}"
+
+
+def route_ids(path: str | Path) -> list[str]:
+    """The ids of a route file's routes in file order, as :func:`read_routes` reports them (``#k`` for a
+    route without a usable id), without reading the routes themselves."""
+    return [_reported_id(elem, k) for k, elem in enumerate(parse_xml(path, "routes"), start=1)]
+
+
 @overload
 def read_routes(
     path: str | Path, strict: Literal[True] = True, min_cavs: int = MIN_CAVS
@@ -497,7 +510,7 @@ def read_routes(
     seen: set[str] = set()
     for k, elem in enumerate(root, start=1):
         raw_id = elem.get("id")
-        rid = raw_id if raw_id and route_id_problem(raw_id) is None else f"#{k}"
+        rid = _reported_id(elem, k)
         try:
             if elem.tag != "route":
                 raise RouteSpecError(f"unknown element <{elem.tag}> in <routes>")
@@ -602,6 +615,7 @@ __all__ = [
     "points_from_xml",
     "read_routes",
     "route_id_problem",
+    "route_ids",
     "route_sha256",
     "scenario_from_xml",
     "shift_seeds",
