@@ -41,25 +41,13 @@ from cmudrive.model.augment import YawAugment, rotate_sample
 from cmudrive.model.config import ModelConfig, get_config
 from cmudrive.model.modeling import V2VVLA
 from cmudrive.model.processor import VLABatch
+from cmudrive.model.row import TRAIN_COLUMNS
 from cmudrive.provenance import describe_diff, settings_diff
 
 # SimLingo's 3e-5 is a fine-tuning rate for a pretrained 1B model (LoRA on the LLM). tiny and small start
 # from random weights: 1e-3 is the usual rate for transformers of a few million parameters trained from
 # scratch (nanoGPT's character-level model); 3e-4 for tens of millions (see docs/model.md, "Training").
 DEFAULT_LR: dict[str, float] = {"tiny": 1e-3, "small": 3e-4, "internvl2-1b": 3e-5}
-COLUMNS = (
-    "route_id",
-    "camera",
-    "merged_bev",
-    "speed",
-    "target_points",
-    "other_cavs",
-    "path",
-    "speed_waypoints",
-    "commentary",
-    "communication",
-    "partner_label",
-)
 CHECKPOINTS = "checkpoints"
 FINAL = "model"
 STATE = "state.json"
@@ -150,7 +138,7 @@ def load_split(config: TrainConfig) -> tuple[Any, Any, list[str]]:
     """(train, validation, validation route ids): the shards of ``config.data`` split by route."""
     from cmudrive.data.shards import load_shards
 
-    ds = load_shards(config.data, COLUMNS)  # datasets' parquet loader over DIR/<route>.parquet
+    ds = load_shards(config.data, TRAIN_COLUMNS)  # datasets' parquet loader over DIR/<route>.parquet
     route_of = np.asarray(ds["route_id"])
     val_routes = split_routes(sorted(set(route_of.tolist())), config.val_fraction, config.seed)
     is_val = np.isin(route_of, val_routes)
