@@ -39,7 +39,9 @@ TARGET_SEARCH = 3  # [segments] of the sparse plan searched ahead of the last on
 
 INPUT_COLUMNS = ("camera", "merged_bev", "speed", "target_points", "other_cavs")  # what the model reads
 LABEL_COLUMNS = ("path", "speed_waypoints", "commentary", "communication", "partner_label")  # targets
-TRAIN_COLUMNS = ("route_id", *INPUT_COLUMNS, *LABEL_COLUMNS)  # what training loads (route_id: the split)
+# what training loads: route_id for the split, and the grid the camera-rotation augmentation re-draws the
+# merged BEV from (cmudrive.model.augment)
+TRAIN_COLUMNS = ("route_id", *INPUT_COLUMNS, "merged_occupancy", *LABEL_COLUMNS)
 assert set(TRAIN_COLUMNS) <= set(COLUMNS)
 
 

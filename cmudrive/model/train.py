@@ -48,6 +48,7 @@ from cmudrive.provenance import describe_diff, settings_diff
 # from random weights: 1e-3 is the usual rate for transformers of a few million parameters trained from
 # scratch (nanoGPT's character-level model); 3e-4 for tens of millions (see docs/model.md, "Training").
 DEFAULT_LR: dict[str, float] = {"tiny": 1e-3, "small": 3e-4, "internvl2-1b": 3e-5}
+GRID = "merged_occupancy"  # the stored grid the augmentation re-draws a rotated row's BEV from
 CHECKPOINTS = "checkpoints"
 FINAL = "model"
 STATE = "state.json"
@@ -201,6 +202,11 @@ class DrivingDataset(Dataset):
     def __init__(
         self, table: Any, augment: YawAugment | None = None, seed: int = 0, speed_dropout: float = 0.0
     ) -> None:
+        # the merged occupancy grid is read (as an array) only for the rows the augmentation rotates
+        self.grids = None
+        if GRID in table.column_names:
+            self.grids = table.select_columns([GRID]).with_format("numpy")
+            table = table.remove_columns([GRID])
         self.table = table
         self.augment = augment
         self.seed = seed
@@ -217,7 +223,10 @@ class DrivingDataset(Dataset):
         row = dict(self.table[int(index)])
         if self.augment is not None:
             rng = np.random.default_rng([self.seed, self.epoch, int(index)])
-            row = rotate_sample(row, self.augment.draw(rng))
+            dyaw = self.augment.draw(rng)
+            if dyaw and self.grids is not None:
+                row[GRID] = np.asarray(self.grids[int(index)][GRID], np.uint8)
+            row = rotate_sample(row, dyaw)
         if self.speed_dropout:
             draw = np.random.default_rng([self.seed, self.epoch, int(index), 1]).random()
             if draw < self.speed_dropout:
