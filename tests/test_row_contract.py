@@ -125,3 +125,49 @@ def test_the_prompt_and_pixels_the_model_reads_are_the_same(collected: tuple[Any
         row, _ = agent_rows[(stored["cav"], stored["tick"])]
         assert processor.prompt(row) == processor.prompt(stored)
         assert np.array_equal(processor.pixel_values(row), processor.pixel_values(stored))
+
+
+def test_the_stored_columns_decode_to_the_model_rows() -> None:
+    """Without a route: what the collector stores, decoded as training decodes it, is what the closed loop
+    feeds the model (camera through JPEG, BEV through the palette PNG, float32 numbers)."""
+    from cmudrive.agents.base import CavPlan
+    from cmudrive.model.row import RowBuilder
+    from cmudrive.sensors.occupancy import occupancy_to_rgb
+
+    rng = np.random.default_rng(0)
+    plan = CavPlan("cav", np.array([[0.0, 0.0], [50.0, 0.0], [50.0, 50.0]]), np.zeros(3, np.int8), np.ones(3))
+    builder = RowBuilder((plan, plan, plan))
+    camera = np.repeat(np.linspace(0, 255, 256, dtype=np.uint8)[None, None, :, None], 128, 1)
+    camera = np.repeat(np.repeat(camera, 3, 3), 2, 0)
+    camera[:, 60:80, 100:140] = rng.integers(0, 256, (2, 20, 40, 3))  # edges: JPEG changes them
+    grid = rng.random((2, 4, 192, 128)) < 0.05
+    relative = np.full((2, 3, 3), np.nan)
+    relative[0, 2], relative[1, 0] = (10.123456789, -2.5, 0.1), (-10.1, 2.5, -0.1)
+    obs = Observations(
+        tick=3, time=0.15, cav_index=np.array([0, 2]), x=np.array([20.0, 48.0]), y=np.zeros(2),
+        yaw=np.array([0.0, np.pi / 2]), speed=np.array([4.123456789, 0.0]), accel=np.zeros(2),
+        other_cavs=relative, camera=camera, merged_occupancy=grid,
+    )  # fmt: skip
+    inputs = builder.inputs(obs, grid)
+    stored, rows = builder.stored(inputs), builder.model_rows(inputs)
+    spec = features()  # the shards' features decode the images, as training reads them
+    for a in range(2):
+        assert np.array_equal(
+            rows[a]["camera"], np.asarray(spec["camera"].decode_example(stored["camera"][a]))
+        )
+        assert np.array_equal(
+            rows[a]["merged_bev"], np.asarray(spec["merged_bev"].decode_example(stored["merged_bev"][a]))
+        )
+        assert rows[a]["other_cavs"] == stored["other_cavs"][a] and rows[a]["speed"] == stored["speed"][a]
+    assert np.array_equal(rows[0]["merged_bev"], occupancy_to_rgb(grid)[0])  # one palette
+    assert not np.array_equal(rows[0]["camera"], camera[0])  # JPEG in closed loop, as in training
+    assert np.array_equal(builder.model_rows(inputs, jpeg=False)[0]["camera"], camera[0])
+    assert rows[0]["other_cavs"] == [[2.0, float(np.float32(10.123456789)), -2.5, float(np.float32(0.1))]]
+    assert rows[0]["speed"] == float(np.float32(4.123456789))
+    # CAV 0 at x = 20 on the first leg: (50, 0) and (50, 50) ahead; CAV 2 at (48, 0) heading north: the
+    # corner is 2 m away (reached), so (50, 50) twice, 50 m ahead and 2 m to the right
+    np.testing.assert_allclose(rows[0]["target_points"], [[30.0, 0.0], [30.0, 50.0]], atol=1e-5)
+    np.testing.assert_allclose(rows[1]["target_points"], [[50.0, -2.0], [50.0, -2.0]], atol=1e-5)
+    assert builder.target_points(obs) is inputs.target_points  # once per tick: the same answer again
+    with pytest.raises(ValueError, match="other CAVs"):
+        builder.target_points(replace(obs, cav_index=np.array([0, 1])))

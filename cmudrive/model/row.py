@@ -130,6 +130,7 @@ class RowBuilder:
         self.targets = TargetPoints(plans)
         self.occupancy = occupancy or OccupancyConfig()
         self._tick: int | None = None
+        self._cavs = np.zeros(0, np.int64)
         self._target_points = np.zeros((0, 2, 2), np.float32)
 
     def target_points(self, obs: Observations) -> np.ndarray:
@@ -137,13 +138,15 @@ class RowBuilder:
         their progress: call it every tick (the closed loop builds rows every tick; the collector, which
         samples every fifth, calls it on the others too); a second call at the same tick repeats the
         first's answer."""
+        cavs = np.asarray(obs.cav_index, np.int64)
         if obs.tick != self._tick:
-            pos = np.stack([obs.x, obs.y], axis=1)
-            points = self.targets.next_two(np.asarray(obs.cav_index, np.int64), pos)
+            points = self.targets.next_two(cavs, np.stack([obs.x, obs.y], axis=1))
             self._target_points = to_ego(points, obs.x[:, None], obs.y[:, None], obs.yaw[:, None]).astype(
                 np.float32
             )
-            self._tick = obs.tick
+            self._tick, self._cavs = obs.tick, cavs
+        elif not np.array_equal(cavs, self._cavs):
+            raise ValueError(f"tick {obs.tick}: target points asked twice, for other CAVs the second time")
         return self._target_points
 
     def inputs(self, obs: Observations, bev_grid: np.ndarray | None) -> RowInputs:
