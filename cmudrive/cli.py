@@ -684,7 +684,7 @@ def evaluate(
     except ValueError as exc:
         _fail(ValueError(f"--step-timeout / --tick-cap: {exc}"))
     if agent in ("v2v-vla", "v2v-vla-baseline"):  # a missing checkpoint fails here, not once per route
-        from cmudrive.agents.v2v_vla import resolve_checkpoint
+        from cmudrive.model.agent import resolve_checkpoint
 
         try:
             resolve_checkpoint(checkpoint, cooperative=agent == "v2v-vla")

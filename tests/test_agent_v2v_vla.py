@@ -16,7 +16,6 @@ pytest.importorskip("transformers", reason="the model needs the 'model' extra (t
 
 import torch
 
-from cmudrive.agents import v2v_vla
 from cmudrive.agents.base import (
     AgentSetupError,
     CavPlan,
@@ -26,7 +25,6 @@ from cmudrive.agents.base import (
     load_agent_class,
 )
 from cmudrive.agents.control import CREEP_AFTER, CREEP_TICKS, WaypointController, desired_speed, point_along
-from cmudrive.agents.v2v_vla import TargetPoints, V2VVLAAgent, V2VVLABaselineAgent, resolve_checkpoint
 from cmudrive.bench.evaluator import EvalConfig, evaluate_route
 from cmudrive.bench.records import STATUS_AGENT_CRASHED, STATUS_SIM_CRASHED
 from cmudrive.bench.routes import CavSpec, RouteSpec
@@ -34,6 +32,9 @@ from cmudrive.bench.runner import RouteTask, run_task
 from cmudrive.maps import RoadMap
 from cmudrive.maps.coords import map_to_carla
 from cmudrive.model import V2VVLA, get_config
+from cmudrive.model import agent as v2v_vla
+from cmudrive.model.agent import V2VVLAAgent, V2VVLABaselineAgent, resolve_checkpoint
+from cmudrive.model.row import TargetPoints
 from cmudrive.sensors.occupancy import occupancy_to_rgb
 from cmudrive.sim.background import BackgroundConfig
 from cmudrive.sim.dynamics import Controls

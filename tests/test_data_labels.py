@@ -5,13 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cmudrive.data.labels import (
-    PATH_POINTS,
-    SPEED_POINTS,
-    next_target_points,
-    to_ego,
-    waypoint_labels,
-)
+from cmudrive.data.labels import PATH_POINTS, SPEED_POINTS, waypoint_labels
+from cmudrive.maps.coords import to_ego
 
 DT = 0.05  # [s] one tick
 
@@ -90,12 +85,3 @@ def test_to_ego_axes() -> None:
     # a vehicle at (10, 5) heading north: a point 3 m north of it is ahead, one 2 m west is on its left
     p = to_ego(np.array([[10.0, 8.0], [8.0, 5.0]]), 10.0, 5.0, np.pi / 2)
     np.testing.assert_allclose(p, [[3.0, 0.0], [0.0, 2.0]], atol=1e-12)
-
-
-def test_next_target_points_skip_reached_ones_and_repeat_the_last() -> None:
-    targets = np.array([[0.0, 0.0], [50.0, 0.0], [100.0, 0.0], [120.0, 0.0]])
-    dist = np.array([0.0, 50.0, 100.0, 120.0])
-    np.testing.assert_array_equal(next_target_points(targets, dist, 10.0, 7.5), targets[[1, 2]])
-    np.testing.assert_array_equal(next_target_points(targets, dist, 45.0, 7.5), targets[[2, 3]])
-    np.testing.assert_array_equal(next_target_points(targets, dist, 110.0, 7.5), targets[[3, 3]])
-    np.testing.assert_array_equal(next_target_points(targets, dist, 118.0, 7.5), targets[[3, 3]])

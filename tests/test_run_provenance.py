@@ -13,12 +13,12 @@ import pytest
 from typer.testing import CliRunner
 
 from cmudrive.agents import PidAgent
-from cmudrive.agents.v2v_vla import DEFAULT_CHECKPOINT
 from cmudrive.bench import EvalConfig, LocalExecutor, run_evaluation
 from cmudrive.bench import manifest as manifest_module
 from cmudrive.bench.manifest import MANIFEST, ResumeWarning, SetupMismatchError, run_setup
 from cmudrive.bench.routes import route_sha256, write_routes
 from cmudrive.cli import app
+from cmudrive.model.agent import DEFAULT_CHECKPOINT
 from cmudrive.provenance import ABSENT, code_version, describe_diff, settings_diff, tree_sha256
 from cmudrive.sim.background import BackgroundConfig
 
@@ -155,7 +155,7 @@ def test_cli_resume_with_another_setup_names_each_difference(tmp_path: Path) -> 
 
 def test_v2v_vla_without_checkpoint_records_the_committed_one() -> None:
     setup = run_setup("eval", "v2v-vla", EvalConfig())
-    assert setup["agent"] == "cmudrive.agents.v2v_vla:V2VVLAAgent"
+    assert setup["agent"] == "cmudrive.model.agent:V2VVLAAgent"
     assert setup["agent_files"]["checkpoint"] == {
         "sha256": tree_sha256(DEFAULT_CHECKPOINT),
         "path": str(DEFAULT_CHECKPOINT.resolve()),

@@ -24,7 +24,7 @@ from cmudrive.cli import app
 from cmudrive.data.schema import packed_to_rgb
 from cmudrive.data.synthetic import write_synthetic_shards
 from cmudrive.model import V2VVLA
-from cmudrive.model.augment import YawAugment, bev_codes, rotate_camera, rotate_sample, rotated_frame
+from cmudrive.model.augment import YawAugment, rotate_camera, rotate_sample, rotated_frame
 from cmudrive.model.train import (
     DrivingDataset,
     TrainConfig,
@@ -128,6 +128,7 @@ def test_labels_move_with_the_rotation_about_the_camera() -> None:
     row = {
         "camera": Image.new("RGB", (256, 128)),
         "merged_bev": Image.fromarray(packed_to_rgb(np.zeros((192, 128), np.uint8))),
+        "merged_occupancy": np.zeros((192, 128), np.uint8),
         "path": np.stack([s, np.zeros(20)], axis=1),
         "speed_waypoints": np.stack([np.arange(1, 11.0), np.zeros(10)], axis=1),
         "target_points": [[30.0, 0.0], [60.0, 0.0]],
@@ -156,16 +157,26 @@ def test_labels_move_with_the_rotation_about_the_camera() -> None:
 
 
 def test_the_bev_is_redrawn_in_the_rotated_frame() -> None:
+    """The stored grid is warped (not the image's colours) and drawn again; the ego box stays upright, and
+    what the old box covered stays hidden."""
     packed = np.zeros((192, 128), np.uint8)
     packed[87:89, 63:65] = 1  # a vehicle ~20 m straight ahead (rows from 64 m ahead, 0.5 m cells)
+    packed[87:89, 20:22] = 0b1010  # a pedestrian on a static cell, to the left: both classes move
+    packed[126:130, 62:66] = 1  # under the ego box (the partner sees the ego): never drawn
     bev = Image.fromarray(packed_to_rgb(packed))
     dyaw = math.radians(10.0)
-    row = {"camera": Image.new("RGB", (256, 128)), "merged_bev": bev}
-    out = np.asarray(rotate_sample(row, dyaw)["merged_bev"])
-    rows, cols = np.nonzero(bev_codes(out) == 1)
+    row = {"camera": Image.new("RGB", (256, 128)), "merged_bev": bev, "merged_occupancy": packed}
+    out = rotate_sample(row, dyaw)
+    grid = out["merged_occupancy"]
+    rows, cols = np.nonzero(grid == 1)
     x, y = 64.0 - (rows.mean() + 0.5) * 0.5, 32.0 - (cols.mean() + 0.5) * 0.5  # cell centres, ego frame
     assert math.degrees(math.atan2(y, x + 1.5)) == pytest.approx(-10.0, abs=2.0)  # seen from the camera
-    assert np.array_equal(out[124:133, 62:66], np.asarray(bev)[124:133, 62:66])  # the ego box, upright
+    assert (grid == 0b1010).sum() >= 2 and set(np.unique(grid)) == {0, 1, 0b1010}
+    image = np.asarray(out["merged_bev"])
+    assert np.array_equal(image, packed_to_rgb(grid))  # drawn with the one palette
+    assert np.array_equal(image[124:133, 62:66], np.asarray(bev)[124:133, 62:66])  # the ego box, upright
+    with pytest.raises(ValueError, match="merged_occupancy"):
+        rotate_sample({"camera": row["camera"], "merged_bev": bev}, dyaw)
 
 
 def test_augmentation_is_a_function_of_seed_epoch_and_index(data: Path) -> None:

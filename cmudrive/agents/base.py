@@ -195,8 +195,8 @@ BUNDLED_AGENTS: dict[str, str] = {
     "expert": "cmudrive.agents.expert:ExpertAgent",
     "autopilot": "cmudrive.agents.autopilot:AutopilotAgent",
     "pid": "cmudrive.agents.pid:PidAgent",
-    "v2v-vla": "cmudrive.agents.v2v_vla:V2VVLAAgent",  # needs the model extra and a checkpoint
-    "v2v-vla-baseline": "cmudrive.agents.v2v_vla:V2VVLABaselineAgent",
+    "v2v-vla": "cmudrive.model.agent:V2VVLAAgent",  # needs the model extra and a checkpoint
+    "v2v-vla-baseline": "cmudrive.model.agent:V2VVLABaselineAgent",
 }
 
 

@@ -13,8 +13,6 @@ from cmudrive.data.labels import (
     PATH_SPACING,
     SPEED_POINTS,
     SPEED_STEP_TICKS,
-    next_target_points,
-    to_ego,
     waypoint_labels,
 )
 from cmudrive.data.language import Language, LanguageInputs, describe
@@ -50,12 +48,10 @@ __all__ = [
     "describe",
     "features",
     "load_shards",
-    "next_target_points",
     "pack_occupancy",
     "shard_complete",
     "shard_path",
     "shard_paths",
-    "to_ego",
     "unpack_occupancy",
     "verify_shard",
     "waypoint_labels",

@@ -7,6 +7,10 @@ evaluator's own :class:`~cmudrive.bench.observe.ObservationBuilder`, on sample t
 visibility, occupancy and V2V merge cost nothing on the other four ticks of five. V2V uses the ideal link
 (no latency, loss or pose noise) and the default partners (the closest CAV in front).
 
+The model's input columns (camera, merged BEV, speed, target points, other CAVs) come from
+:class:`cmudrive.model.row.RowBuilder`, the row contract the closed-loop agent builds its rows with too;
+its target points follow each CAV's progress along the sparse plan, advanced every tick.
+
 Labels need the future (the path the CAV drives next, its positions 2.5 s on, the expert's target speed
 over the next 1.25 s for the language), so a sample tick is kept in memory, its images already encoded,
 until every CAV of it has driven ``PATH_REACH`` metres and ``LABEL_TICKS`` ticks further or left the world;
@@ -24,19 +28,12 @@ from cmudrive.agents.base import Agent, Observation, Observations, RouteSetup
 from cmudrive.agents.expert import ExpertAgent, Reason
 from cmudrive.agents.expert.agent import ExpertDecision
 from cmudrive.bench.observe import ObservationBuilder, SensorConfig
-from cmudrive.data.labels import (
-    PATH_POINTS,
-    PATH_SPACING,
-    SPEED_POINTS,
-    SPEED_STEP_TICKS,
-    next_target_points,
-    to_ego,
-    waypoint_labels,
-)
+from cmudrive.data.labels import PATH_POINTS, PATH_SPACING, SPEED_POINTS, SPEED_STEP_TICKS, waypoint_labels
 from cmudrive.data.language import Language, LanguageInputs, describe
-from cmudrive.data.schema import CAMERA_FORMAT, COLUMNS, encode_bev, encode_image, pack_occupancy
+from cmudrive.data.schema import COLUMNS, pack_occupancy
 from cmudrive.data.shards import ROW_GROUP, ShardWriter
 from cmudrive.maps import RoadMap, load_scenery
+from cmudrive.model import row  # the module, not its names: cmudrive.model.row imports cmudrive.data
 from cmudrive.sim.dynamics import Controls
 from cmudrive.sim.snapshot import ActorKind, Snapshot
 from cmudrive.sim.weather import get_weather
@@ -45,7 +42,6 @@ SAMPLE_EVERY = 5  # [ticks] 4 Hz at 20 Hz
 LANGUAGE_TICKS = 25  # [ticks] the expert's target speed is looked up at t+5 .. t+25 for the language
 LABEL_TICKS = max(SPEED_POINTS * SPEED_STEP_TICKS, LANGUAGE_TICKS)  # [ticks] of future a sample needs
 PATH_REACH = (PATH_POINTS - 1) * PATH_SPACING  # [m] of future path a sample needs
-TARGET_MIN_AHEAD = 7.5  # [m] a sparse target point closer than this along the route counts as reached
 SENSORS = frozenset(
     {
         Observation.PRIVILEGED,
@@ -145,19 +141,7 @@ class CollectingAgent(Agent):
             rng=np.random.default_rng([self.seed, 1]),
             road_map=self.road_map,
         )
-        self.targets = [c.target_points for c in route.cavs]
-        self.target_distance = []
-        for c in route.cavs:
-            dense = c.dense_route
-            assert dense is not None
-            near = np.argmin(
-                np.hypot(
-                    dense.xy[None, :, 0] - c.target_points[:, None, 0],
-                    dense.xy[None, :, 1] - c.target_points[:, None, 1],
-                ),
-                axis=1,
-            )
-            self.target_distance.append(dense.distance[near])
+        self.row_builder = row.RowBuilder(route.cavs, self.sensor_config.occupancy)
         self.trace = _Trace(len(route.cavs))
         self._warm_up(route)
 
@@ -197,6 +181,7 @@ class CollectingAgent(Agent):
         decision = self.expert.decision
         assert decision is not None and obs.snapshot is not None
         self.trace.add(obs.tick, obs, decision)
+        self.row_builder.target_points(obs)  # progress along the plan advances every tick, as in closed loop
         self.active[:] = False
         self.active[obs.cav_index] = True
         if obs.tick % self.sample_every == 0 and len(obs.cav_index):
@@ -219,31 +204,17 @@ class CollectingAgent(Agent):
         sensed = self.observer.build(snap, obs.tick, rows, obs.cav_index, privileged=True)
         assert sensed.camera is not None and sensed.occupancy is not None
         assert sensed.merged_occupancy is not None and sensed.partner is not None
-        own = pack_occupancy(sensed.occupancy)
-        merged = pack_occupancy(sensed.merged_occupancy)
-        n = len(obs.cav_index)
+        inputs = self.row_builder.inputs(sensed, sensed.merged_occupancy)  # the model's input columns
+        assert inputs.bev is not None
         cols: dict[str, list[Any]] = {
-            "camera": [encode_image(sensed.camera[a], CAMERA_FORMAT) for a in range(n)],
-            "occupancy": list(own),
-            "merged_occupancy": list(merged),
-            "merged_bev": [encode_bev(merged[a], self.sensor_config.occupancy) for a in range(n)],
+            **self.row_builder.stored(inputs),
+            "occupancy": list(pack_occupancy(sensed.occupancy)),
+            "merged_occupancy": list(inputs.bev),
             "partner": [int(p) for p in sensed.partner],
-            "speed": [float(v) for v in obs.speed],
             "throttle": [float(v) for v in controls.throttle],
             "steer": [float(v) for v in controls.steer],
             "brake": [float(v) for v in controls.brake],
         }
-        targets, others = [], []
-        assert obs.other_cavs is not None
-        for a, k in enumerate(obs.cav_index):
-            k = int(k)
-            ego_s = float(self.expert.plans.distance[k, decision.route_index[a]])
-            tp = next_target_points(self.targets[k], self.target_distance[k], ego_s, TARGET_MIN_AHEAD)
-            targets.append(to_ego(tp, obs.x[a], obs.y[a], obs.yaw[a]).astype(np.float32))
-            rel = obs.other_cavs[a]
-            others.append([[float(j), *map(float, rel[j])] for j in np.flatnonzero(~np.isnan(rel[:, 0]))])
-        cols["target_points"] = targets
-        cols["other_cavs"] = others
         assert self.observer.last_visibility is not None
         return _SampleTick(obs.tick, obs.time, snap, decision, rows, self.observer.last_visibility, cols)
 

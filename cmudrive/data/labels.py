@@ -1,4 +1,4 @@
-"""Waypoint labels from a CAV's actual future trajectory, and ego-frame helpers.
+"""Waypoint labels from a CAV's actual future trajectory (ego frame: :func:`cmudrive.maps.coords.to_ego`).
 
 A sample taken at tick ``t`` gets two SimLingo-style action labels, both in the ego frame at ``t`` (x forward,
 y left, metres):
@@ -19,21 +19,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from cmudrive.maps.coords import to_ego
+
 PATH_POINTS = 20  # [-] path label points
 PATH_SPACING = 1.0  # [m] between path points
 SPEED_POINTS = 10  # [-] speed waypoints
 SPEED_STEP_TICKS = 5  # [ticks of 0.05 s] = 0.25 s between speed waypoints
 MIN_STEP = 1e-6  # [m] a polyline point this close to the one before is dropped (standing still)
-
-
-def to_ego(
-    xy: np.ndarray, x: float | np.ndarray, y: float | np.ndarray, yaw: float | np.ndarray
-) -> np.ndarray:
-    """(..., 2) map-frame points -> the frame of a vehicle at (x, y) heading ``yaw`` (x forward, y left);
-    x, y, yaw may be arrays that broadcast against ``xy[..., 0]``."""
-    c, s = np.cos(yaw), np.sin(yaw)
-    dx, dy = xy[..., 0] - x, xy[..., 1] - y
-    return np.stack([c * dx + s * dy, -s * dx + c * dy], axis=-1)
 
 
 def _dedup(points: np.ndarray) -> np.ndarray:
@@ -119,15 +111,3 @@ def _arc_of_trajectory_end(trajectory: np.ndarray) -> float:
     """Arc length of the trajectory's last point on the polyline (the polyline starts with the trajectory)."""
     seg = np.hypot(*np.diff(_dedup(trajectory), axis=0).T) if len(trajectory) > 1 else np.zeros(0)
     return float(seg.sum())
-
-
-def next_target_points(
-    targets: np.ndarray, target_distance: np.ndarray, ego_distance: float, min_ahead: float
-) -> np.ndarray:
-    """(2, 2) the next two sparse target points (map frame) whose route distance is more than
-    ``min_ahead`` metres beyond the CAV's (``targets`` (k, 2) with route distances (k,)); the route's
-    last target point repeated when fewer than two are left."""
-    ahead = np.flatnonzero(target_distance > ego_distance + min_ahead)
-    idx = [int(ahead[0]) if len(ahead) else len(targets) - 1]
-    idx.append(int(ahead[1]) if len(ahead) > 1 else len(targets) - 1)
-    return targets[idx]

@@ -23,8 +23,10 @@ import numpy as np
 from PIL import Image
 
 from cmudrive.data.labels import PATH_POINTS, SPEED_POINTS
-from cmudrive.sensors import NUM_CLASSES, OccupancyClass, OccupancyConfig
-from cmudrive.sensors.occupancy import BACKGROUND_COLOUR, CLASS_COLOURS, EGO_COLOUR
+from cmudrive.sensors import NUM_CLASSES, OccupancyConfig
+from cmudrive.sensors.occupancy import PALETTE, occupancy_codes
+from cmudrive.sensors.occupancy import pack_occupancy as pack_occupancy  # the bit masks live with the
+from cmudrive.sensors.occupancy import packed_to_rgb as packed_to_rgb  # sensors' image: one palette
 
 if TYPE_CHECKING:
     import datasets
@@ -120,15 +122,6 @@ def encode_image(rgb: np.ndarray, fmt: str) -> dict[str, bytes | None]:
     return {"bytes": buf.getvalue(), "path": None}
 
 
-def pack_occupancy(grid: np.ndarray) -> np.ndarray:
-    """(..., C, H, W) bool -> (..., H, W) uint8, bit k set where class k is occupied."""
-    grid = np.asarray(grid, bool)
-    out = np.zeros(grid.shape[:-3] + grid.shape[-2:], np.uint8)
-    for k in range(grid.shape[-3]):
-        out |= grid[..., k, :, :].astype(np.uint8) << k
-    return out
-
-
 def unpack_occupancy(packed: np.ndarray, num_classes: int = NUM_CLASSES) -> np.ndarray:
     """(..., H, W) uint8 bit masks -> (..., C, H, W) bool (the sensors' layout)."""
     packed = np.asarray(packed, np.uint8)
@@ -136,47 +129,10 @@ def unpack_occupancy(packed: np.ndarray, num_classes: int = NUM_CLASSES) -> np.n
     return ((packed[..., None, :, :] >> bits) & 1).astype(bool)
 
 
-EGO_INDEX = 1 << NUM_CLASSES  # palette index of the ego's own box in the BEV image
-
-
-def _palette() -> np.ndarray:
-    """(2^C + 1, 3) uint8: the colour of each packed cell value as ``occupancy_to_rgb`` paints it (the class
-    drawn last wins: static, cyclist, pedestrian, then vehicle), and the ego's colour at EGO_INDEX."""
-    lut = np.empty((EGO_INDEX + 1, 3), np.uint8)
-    lut[:] = BACKGROUND_COLOUR
-    order = (OccupancyClass.STATIC, OccupancyClass.CYCLIST, OccupancyClass.PEDESTRIAN, OccupancyClass.VEHICLE)
-    for code in range(EGO_INDEX):
-        for k in order:
-            if code >> int(k) & 1:
-                lut[code] = CLASS_COLOURS[k]
-    lut[EGO_INDEX] = EGO_COLOUR
-    return lut
-
-
-PALETTE = _palette()
-
-
-def bev_indices(packed: np.ndarray, config: OccupancyConfig | None = None) -> np.ndarray:
-    """(..., H, W) packed occupancy -> palette indices (uint8) with the ego's 4.9 x 2.1 m box drawn."""
-    config = config or OccupancyConfig()
-    index = np.array(packed, np.uint8)
-    xs, ys = config.cell_centres()
-    rows = np.flatnonzero(np.abs(xs) <= 2.45)  # the box of cmudrive.sensors.occupancy_to_rgb
-    cols = np.flatnonzero(np.abs(ys) <= 1.05)
-    index[..., rows[0] : rows[-1] + 1, cols[0] : cols[-1] + 1] = EGO_INDEX
-    return index
-
-
-def packed_to_rgb(packed: np.ndarray, config: OccupancyConfig | None = None) -> np.ndarray:
-    """(..., H, W) packed occupancy -> (..., H, W, 3) uint8: the image ``occupancy_to_rgb`` draws of the
-    unpacked grids (ego box included)."""
-    return PALETTE[bev_indices(packed, config)]
-
-
 def encode_bev(packed: np.ndarray, config: OccupancyConfig | None = None) -> dict[str, bytes | None]:
     """(H, W) packed merged occupancy -> the ``datasets.Image`` storage of its RGB rendering, as a palette
     PNG: one byte per pixel to compress instead of three, and the same pixels once decoded as RGB."""
-    image = Image.fromarray(bev_indices(packed, config), mode="L")
+    image = Image.fromarray(occupancy_codes(packed, config), mode="L")
     image.putpalette(PALETTE.tobytes())
     buf = io.BytesIO()
     image.save(buf, "PNG", compress_level=PNG_COMPRESS_LEVEL)

@@ -21,6 +21,9 @@ in y, with no geographic meaning beyond it.
 
 All functions are vectorised: points are arrays of shape (..., 2) or (..., 3), yaws of shape (...) or
 scalars; inputs are never modified.
+
+A vehicle's own frame (the ego frame of labels, target points and model rows: x forward, y left, metres,
+origin at the vehicle's centre): :func:`to_ego`.
 """
 
 from __future__ import annotations
@@ -80,3 +83,13 @@ def map_to_carla(
     if yaw_rad is None:
         return points
     return points, map_yaw_to_carla(yaw_rad)
+
+
+def to_ego(
+    xy: np.ndarray, x: float | np.ndarray, y: float | np.ndarray, yaw: float | np.ndarray
+) -> np.ndarray:
+    """(..., 2) map-frame points -> the frame of a vehicle at (x, y) heading ``yaw`` (x forward, y left);
+    x, y, yaw may be arrays that broadcast against ``xy[..., 0]``."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    dx, dy = xy[..., 0] - x, xy[..., 1] - y
+    return np.stack([c * dx + s * dy, -s * dx + c * dy], axis=-1)

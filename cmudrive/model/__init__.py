@@ -1,7 +1,9 @@
 """V2V-VLA, the cooperative vision-language-action model, and its non-cooperative SimLingo-style baseline.
 
 ``config`` and ``processor`` need no torch at import; ``V2VVLA`` (``modeling``) needs torch,
-transformers and peft (the ``model`` extra) and is imported on first use.
+transformers and peft (the ``model`` extra) and is imported on first use. ``row`` is the row contract (a
+CAV's observations and plan -> the model's input row, for data collection and closed loop alike) and
+``agent`` the closed-loop agent (``cmudrive eval --agent v2v-vla``); neither imports torch.
 """
 
 from __future__ import annotations

@@ -15,9 +15,11 @@ single image determines exactly is done here:
 - path, speed waypoints, target points and other CAVs (positions and yaws) are moved into the new frame by
   the same rigid transform; speed and the language labels are unchanged (a turned car still has to do the
   same thing; the path label already says how to get back);
-- the merged BEV image is re-drawn in the new frame: its colours are read back into occupancy classes,
-  warped with the V2V warp (:func:`cmudrive.v2v.warp.warp_to_ego`, nearest cell), and drawn again with the
-  ego box upright; cells that come into view from outside the old grid are empty.
+- the merged BEV image is re-drawn in the new frame from the stored occupancy grid (``merged_occupancy``,
+  packed class bits): warped with the V2V warp (:func:`cmudrive.v2v.warp.warp_to_ego`, nearest cell) and
+  drawn again, with the row contract's palette (:func:`cmudrive.sensors.occupancy.packed_to_rgb`), ego box
+  upright; cells that come into view from outside the old grid are empty, and so are the cells the old
+  ego box covered (the image never showed what lies under the box, and the rotated one does not either).
 
 Not modelled: a lateral shift without rotation (it needs the scene's depth, i.e. re-rendering), and the
 parallax of a camera that turns about the vehicle centre instead of itself.
@@ -32,9 +34,8 @@ from typing import Any
 import numpy as np
 from PIL import Image
 
-from cmudrive.data.schema import PALETTE, packed_to_rgb
 from cmudrive.sensors.camera import CameraConfig
-from cmudrive.sensors.occupancy import EGO_COLOUR, OccupancyConfig
+from cmudrive.sensors.occupancy import OccupancyConfig, ego_box, pack_occupancy, packed_to_rgb
 from cmudrive.v2v.warp import warp_to_ego
 
 # (n, 2) point columns of a row, ego frame [m], that move with the frame
@@ -91,27 +92,19 @@ def rotate_camera(image: Image.Image, dyaw: float, fov_deg: float) -> Image.Imag
     return image.transform((w, h), Image.Transform.PERSPECTIVE, coeffs, Image.Resampling.BILINEAR)
 
 
-def bev_codes(rgb: np.ndarray) -> np.ndarray:
-    """(H, W, 3) uint8 BEV drawn by ``packed_to_rgb`` -> (H, W) uint8 packed occupancy of what it shows
-    (the class drawn on top at each cell; the ego box and unknown colours read as empty)."""
-    codes = np.zeros(rgb.shape[:2], np.uint8)
-    for code in (8, 4, 2, 1):  # single-class codes; the palette's colour of each
-        codes[np.all(rgb == PALETTE[code], axis=-1)] = code
-    codes[np.all(rgb == np.asarray(EGO_COLOUR, np.uint8), axis=-1)] = 0
-    return codes
-
-
-def rotate_bev(image: Image.Image, pose: np.ndarray, config: OccupancyConfig | None = None) -> Image.Image:
-    """The merged BEV image seen from the frame at ``pose`` (in the old ego frame), ego box redrawn."""
+def rotate_occupancy(
+    packed: np.ndarray, pose: np.ndarray, config: OccupancyConfig | None = None
+) -> np.ndarray:
+    """(H, W) packed occupancy (the ``merged_occupancy`` column) seen from the frame at ``pose`` (in the
+    old ego frame): nearest-cell warp of every class; the old ego box's cells and cells from outside the
+    old grid are empty."""
     config = config or OccupancyConfig()
-    rgb = np.asarray(image.convert("RGB"))
-    codes = bev_codes(rgb)
-    bits = ((codes[None, :, :] >> np.arange(4, dtype=np.uint8)[:, None, None]) & 1).astype(bool)
+    packed = np.array(packed, np.uint8)
+    rows, cols = ego_box(config)
+    packed[rows, cols] = 0  # hidden under the ego box in the stored image: hidden after the rotation too
+    bits = ((packed[None, :, :] >> np.arange(4, dtype=np.uint8)[:, None, None]) & 1).astype(bool)
     warped = warp_to_ego(bits[None], np.zeros((1, 3)), pose[None], config)[0]  # (C, H, W)
-    packed = np.zeros(codes.shape, np.uint8)
-    for k in range(warped.shape[0]):
-        packed |= warped[k].astype(np.uint8) << k
-    return Image.fromarray(packed_to_rgb(packed, config))
+    return pack_occupancy(warped)
 
 
 def rotate_sample(
@@ -120,7 +113,8 @@ def rotate_sample(
     camera: CameraConfig | None = None,
     occupancy: OccupancyConfig | None = None,
 ) -> dict[str, Any]:
-    """A copy of a dataset row as seen by the ego turned by ``dyaw`` [rad] (+ = left) about its camera."""
+    """A copy of a dataset row as seen by the ego turned by ``dyaw`` [rad] (+ = left) about its camera; a
+    row with a ``merged_bev`` needs its ``merged_occupancy`` grid (the BEV is re-drawn from it)."""
     if dyaw == 0.0:
         return row
     camera = camera or CameraConfig()
@@ -128,7 +122,11 @@ def rotate_sample(
     out = dict(row)
     out["camera"] = rotate_camera(_pil(row["camera"]), dyaw, camera.fov_deg)
     if row.get("merged_bev") is not None:
-        out["merged_bev"] = rotate_bev(_pil(row["merged_bev"]), pose, occupancy)
+        if row.get("merged_occupancy") is None:
+            raise ValueError("rotating the merged BEV needs its grid: load the merged_occupancy column")
+        grid = rotate_occupancy(np.asarray(row["merged_occupancy"], np.uint8), pose, occupancy)
+        out["merged_occupancy"] = grid
+        out["merged_bev"] = Image.fromarray(packed_to_rgb(grid, occupancy))
     for key in _POINT_KEYS:
         if row.get(key) is not None:
             out[key] = to_frame(np.asarray(row[key], np.float64), pose).astype(np.float32)

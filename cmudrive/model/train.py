@@ -41,25 +41,14 @@ from cmudrive.model.augment import YawAugment, rotate_sample
 from cmudrive.model.config import ModelConfig, get_config
 from cmudrive.model.modeling import V2VVLA
 from cmudrive.model.processor import VLABatch
+from cmudrive.model.row import TRAIN_COLUMNS
 from cmudrive.provenance import describe_diff, settings_diff
 
 # SimLingo's 3e-5 is a fine-tuning rate for a pretrained 1B model (LoRA on the LLM). tiny and small start
 # from random weights: 1e-3 is the usual rate for transformers of a few million parameters trained from
 # scratch (nanoGPT's character-level model); 3e-4 for tens of millions (see docs/model.md, "Training").
 DEFAULT_LR: dict[str, float] = {"tiny": 1e-3, "small": 3e-4, "internvl2-1b": 3e-5}
-COLUMNS = (
-    "route_id",
-    "camera",
-    "merged_bev",
-    "speed",
-    "target_points",
-    "other_cavs",
-    "path",
-    "speed_waypoints",
-    "commentary",
-    "communication",
-    "partner_label",
-)
+GRID = "merged_occupancy"  # the stored grid the augmentation re-draws a rotated row's BEV from
 CHECKPOINTS = "checkpoints"
 FINAL = "model"
 STATE = "state.json"
@@ -150,7 +139,7 @@ def load_split(config: TrainConfig) -> tuple[Any, Any, list[str]]:
     """(train, validation, validation route ids): the shards of ``config.data`` split by route."""
     from cmudrive.data.shards import load_shards
 
-    ds = load_shards(config.data, COLUMNS)  # datasets' parquet loader over DIR/<route>.parquet
+    ds = load_shards(config.data, TRAIN_COLUMNS)  # datasets' parquet loader over DIR/<route>.parquet
     route_of = np.asarray(ds["route_id"])
     val_routes = split_routes(sorted(set(route_of.tolist())), config.val_fraction, config.seed)
     is_val = np.isin(route_of, val_routes)
@@ -213,6 +202,11 @@ class DrivingDataset(Dataset):
     def __init__(
         self, table: Any, augment: YawAugment | None = None, seed: int = 0, speed_dropout: float = 0.0
     ) -> None:
+        # the merged occupancy grid is read (as an array) only for the rows the augmentation rotates
+        self.grids = None
+        if GRID in table.column_names:
+            self.grids = table.select_columns([GRID]).with_format("numpy")
+            table = table.remove_columns([GRID])
         self.table = table
         self.augment = augment
         self.seed = seed
@@ -229,7 +223,10 @@ class DrivingDataset(Dataset):
         row = dict(self.table[int(index)])
         if self.augment is not None:
             rng = np.random.default_rng([self.seed, self.epoch, int(index)])
-            row = rotate_sample(row, self.augment.draw(rng))
+            dyaw = self.augment.draw(rng)
+            if dyaw and self.grids is not None:
+                row[GRID] = np.asarray(self.grids[int(index)][GRID], np.uint8)
+            row = rotate_sample(row, dyaw)
         if self.speed_dropout:
             draw = np.random.default_rng([self.seed, self.epoch, int(index), 1]).random()
             if draw < self.speed_dropout:

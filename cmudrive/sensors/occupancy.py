@@ -278,25 +278,73 @@ _DRAW_ORDER = (
     OccupancyClass.CYCLIST,
     OccupancyClass.PEDESTRIAN,
     OccupancyClass.VEHICLE,
-)
-# colour of each cell code: 0 background, 1 + i the i-th class drawn, then the ego
-_PALETTE = np.array([BACKGROUND_COLOUR, *(CLASS_COLOURS[k] for k in _DRAW_ORDER), EGO_COLOUR], np.uint8)
+)  # a cell holding several classes shows the last of them: a vehicle on a static cell is a vehicle
+EGO_CODE = 1 << NUM_CLASSES  # palette index of the ego's own box (past every packed class mask)
+EGO_HALF_LENGTH = 2.45  # [m] the ego box drawn in the image: 4.9 x 2.1 m at the origin
+EGO_HALF_WIDTH = 1.05  # [m]
+
+
+def _palette() -> np.ndarray:
+    """(2^C + 1, 3) uint8: the colour of each packed cell value (bit k set where class k is occupied, see
+    :func:`pack_occupancy`): the background, or the colour of the class drawn last (``_DRAW_ORDER``);
+    the ego's colour at ``EGO_CODE``."""
+    lut = np.empty((EGO_CODE + 1, 3), np.uint8)
+    lut[:] = BACKGROUND_COLOUR
+    for code in range(EGO_CODE):
+        for k in _DRAW_ORDER:
+            if code >> int(k) & 1:
+                lut[code] = CLASS_COLOURS[k]
+    lut[EGO_CODE] = EGO_COLOUR
+    return lut
+
+
+PALETTE = _palette()  # the one palette of the occupancy image (the dataset's merged_bev, the model's BEV)
+
+
+def pack_occupancy(grid: np.ndarray) -> np.ndarray:
+    """(..., C, H, W) bool -> (..., H, W) uint8, bit k set where class k is occupied (overlapping classes
+    survive; the dataset stores grids so)."""
+    grid = np.asarray(grid, bool)
+    if grid.shape[-3] > 8:
+        raise ValueError(f"pack_occupancy packs at most 8 classes into a byte, got {grid.shape[-3]}")
+    bits = (1 << np.arange(grid.shape[-3])).astype(np.uint8)
+    return np.einsum("...chw,c->...hw", grid.view(np.uint8), bits)  # a sum of distinct bits: their OR
+
+
+def ego_box(config: OccupancyConfig | None = None) -> tuple[slice, slice]:
+    """(rows, columns) of the grid cells the ego's box covers (cell centres within 2.45 m along and 1.05 m
+    across the ego's centre)."""
+    xs, ys = (config or OccupancyConfig()).cell_centres()
+    rows = np.flatnonzero(np.abs(xs) <= EGO_HALF_LENGTH)
+    cols = np.flatnonzero(np.abs(ys) <= EGO_HALF_WIDTH)
+    return slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1)
+
+
+def occupancy_codes(
+    packed: np.ndarray, config: OccupancyConfig | None = None, ego: bool = True
+) -> np.ndarray:
+    """(..., H, W) packed occupancy -> (..., H, W) uint8 indices into :data:`PALETTE`, the ego's box drawn
+    (``EGO_CODE``) when ``ego``."""
+    code = np.array(packed, np.uint8)
+    if ego:
+        rows, cols = ego_box(config)
+        code[..., rows, cols] = EGO_CODE
+    return code
+
+
+def packed_to_rgb(packed: np.ndarray, config: OccupancyConfig | None = None, ego: bool = True) -> np.ndarray:
+    """(..., H, W) packed occupancy -> (..., H, W, 3) uint8: the occupancy image (one palette lookup)."""
+    return np.take(PALETTE, occupancy_codes(packed, config, ego), axis=0)
 
 
 def occupancy_to_rgb(grid: np.ndarray, config: OccupancyConfig | None = None, ego: bool = True) -> np.ndarray:
-    """(n, C, H, W) bool occupancy -> (n, H, W, 3) uint8 image, ego driving up; the classes are drawn in
-    order (static first, vehicles last), so a vehicle standing on a static cell shows as a vehicle; the
-    ego's own footprint (a 4.9 x 2.1 m box at the origin) is drawn green when ``ego``.
+    """(n, C, H, W) bool occupancy -> (n, H, W, 3) uint8 image, ego driving up; a cell that holds several
+    classes shows the last one of static, cyclist, pedestrian, vehicle (a vehicle standing on a static cell
+    shows as a vehicle); the ego's own footprint (a 4.9 x 2.1 m box at the origin) is drawn green when
+    ``ego``. The same image as the dataset's ``merged_bev`` of the same grid: :func:`packed_to_rgb` of the
+    packed grid, one palette (:data:`PALETTE`) for both.
 
-    Each cell gets the code of the last class drawn on it (a running maximum of class masks times their
-    rank), then one palette lookup colours it: 0.7 ms for 16 grids of 192 x 128, against 4.2 ms for one
-    masked assignment per class (the closed loop draws every CAV's merged grid every tick)."""
-    config = config or OccupancyConfig()
-    cells = np.asarray(grid, bool).view(np.uint8)  # (n, C, H, W) of 0/1
-    code = cells[:, _DRAW_ORDER[0]].copy()
-    for rank, k in enumerate(_DRAW_ORDER[1:], 2):
-        np.maximum(code, cells[:, k] * np.uint8(rank), out=code)
-    if ego:
-        xs, ys = config.cell_centres()
-        code[:, (np.abs(xs) <= 2.45)[:, None] & (np.abs(ys) <= 1.05)[None, :]] = len(_PALETTE) - 1
-    return np.take(_PALETTE, code, axis=0)
+    Each cell's packed class mask is coloured by one palette lookup: 0.7 ms for 16 grids of 192 x 128,
+    against 4.2 ms for one masked assignment per class (the closed loop draws every CAV's merged grid
+    every tick)."""
+    return packed_to_rgb(pack_occupancy(grid), config, ego)

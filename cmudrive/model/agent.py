@@ -2,10 +2,11 @@
 
 Per tick, for the ``n`` active CAVs:
 
-1. each CAV's row, as the dataset has it: the front camera, the merged occupancy drawn as the RGB image
-   of the dataset (``occupancy_to_rgb``), its speed, the next two sparse route target points in its frame
-   (:class:`TargetPoints`: progress along the leaderboard-style sparse plan that every agent gets, no
-   privileged map) and the other CAVs' poses;
+1. each CAV's row, as the dataset has it (:class:`cmudrive.model.row.RowBuilder`, the row contract the
+   collector stores rows with): the front camera after the dataset's JPEG round trip, the merged
+   occupancy drawn with the dataset's palette, its speed, the next two sparse route target points in its
+   frame (progress along the leaderboard-style sparse plan that every agent gets, no privileged map) and
+   the other CAVs' poses;
 2. one :meth:`~cmudrive.model.V2VVLA.predict` for all of them: the waypoints from one pass over
    prompt + queries every tick, and language (greedy decoding on the same KV cache) every
    ``language_every`` ticks (default 5: the dataset's 4 Hz, the rate its commentary labels change at;
@@ -32,18 +33,15 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from cmudrive.agents.base import Agent, CavPlan, Observation, Observations, RouteSetup
+from cmudrive.agents.base import Agent, Observation, Observations, RouteSetup
 from cmudrive.agents.control import WaypointController
-from cmudrive.data.labels import to_ego
-from cmudrive.sensors.occupancy import occupancy_to_rgb
+from cmudrive.model.row import RowBuilder
 from cmudrive.sim.dynamics import Controls
 
 MODELS = Path(__file__).resolve().parents[1] / "assets" / "models"
 DEFAULT_CHECKPOINT = MODELS / "v2v-vla-tiny-no-speed"
 DEFAULT_BASELINE_CHECKPOINT = MODELS / "v2v-vla-baseline-tiny-no-speed"
 LANGUAGE_EVERY = 5  # [ticks] generate language at 4 Hz (the dataset's sample rate)
-TARGET_MIN_AHEAD = 7.5  # [m] a target point closer than this along the route counts as reached (as the data)
-TARGET_SEARCH = 3  # [segments] of the sparse plan searched ahead of the last one for the CAV's progress
 
 
 def resolve_checkpoint(checkpoint: str | Path | None, cooperative: bool) -> Path:
@@ -79,49 +77,6 @@ def load_checkpoint(path: Path, device: str, cooperative: bool) -> Any:
     return model
 
 
-class TargetPoints:
-    """The next two sparse target points of each CAV, from its progress along its sparse plan (the
-    polyline through ``CavPlan.target_points``; what the leaderboard gives agents): the first two points
-    more than ``TARGET_MIN_AHEAD`` metres of polyline beyond the CAV's projection on it, the last point
-    repeated at the end. Progress only moves forward, over at most ``TARGET_SEARCH`` segments a tick."""
-
-    def __init__(self, plans: tuple[CavPlan, ...]) -> None:
-        k = max(len(p.target_points) for p in plans)
-        self.points = np.zeros((len(plans), k, 2))  # (K, k, 2) map frame [m], padded with the last point
-        self.distance = np.zeros((len(plans), k))  # (K, k) [m] along the polyline, padded with +inf
-        self.count = np.array([len(p.target_points) for p in plans])
-        for i, p in enumerate(plans):
-            pts = np.asarray(p.target_points, np.float64)
-            self.points[i, : len(pts)], self.points[i, len(pts) :] = pts, pts[-1]
-            d = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
-            self.distance[i, : len(pts)], self.distance[i, len(pts) :] = d, np.inf
-        self.segment = np.zeros(len(plans), np.int64)  # the segment each CAV was last projected on
-
-    def progress(self, rows: np.ndarray, pos: np.ndarray) -> np.ndarray:
-        """(n,) [m] along the plan of CAVs ``rows`` at ``pos`` (n, 2); advances their segments."""
-        last = np.maximum(self.count[rows] - 2, 0)  # last segment index per CAV
-        seg = np.minimum(self.segment[rows][:, None] + np.arange(TARGET_SEARCH)[None, :], last[:, None])
-        r = rows[:, None]
-        a, b = self.points[r, seg], self.points[r, np.minimum(seg + 1, self.count[rows][:, None] - 1)]
-        ab = b - a
-        length2 = np.maximum((ab**2).sum(-1), 1e-9)
-        t = np.clip(((pos[:, None] - a) * ab).sum(-1) / length2, 0.0, 1.0)  # (n, S)
-        dist = np.linalg.norm(a + t[..., None] * ab - pos[:, None], axis=-1)
-        best = np.argmin(dist, axis=1)
-        n = np.arange(len(rows))
-        self.segment[rows] = seg[n, best]
-        return self.distance[rows, seg[n, best]] + t[n, best] * np.sqrt(length2[n, best])
-
-    def next_two(self, rows: np.ndarray, pos: np.ndarray) -> np.ndarray:
-        """(n, 2, 2) the next two target points (map frame) of CAVs ``rows`` at ``pos`` (n, 2)."""
-        s = self.progress(rows, pos)
-        ahead = self.distance[rows] > (s + TARGET_MIN_AHEAD)[:, None]  # (n, k), padding is +inf: True
-        first = np.where(ahead.any(axis=1), np.argmax(ahead, axis=1), self.count[rows] - 1)
-        first = np.minimum(first, self.count[rows] - 1)
-        second = np.minimum(first + 1, self.count[rows] - 1)
-        return np.stack([self.points[rows, first], self.points[rows, second]], axis=1)
-
-
 class V2VVLAAgent(Agent):
     """The cooperative V2V-VLA: camera + merged occupancy + other CAVs in, waypoints + language out."""
 
@@ -138,18 +93,22 @@ class V2VVLAAgent(Agent):
         device: str | None = None,
         partner_requests: bool = True,
         bev: str = "merged",
+        camera_jpeg: bool = True,
     ) -> None:
         """``checkpoint``: a ``V2VVLA.save_pretrained`` directory (default: the committed one);
         ``max_new_tokens``: cap on generated answer tokens (default: the model's ``max_answer_tokens``).
         Ablations of the cooperative model: ``partner_requests=False`` ignores the partner its sentences
         name (every CAV keeps the default partner, the closest CAV in front); ``bev="own"`` gives it the
-        CAV's own occupancy instead of the merged one (no partner information in the image)."""
+        CAV's own occupancy instead of the merged one (no partner information in the image).
+        ``camera_jpeg=False`` feeds the raw camera render instead of the dataset's JPEG round trip
+        (which training saw; ~0.3 ms per CAV and tick, docs/model.md, "Row contract")."""
         if language_every < 1:
             raise ValueError(f"language_every must be >= 1 tick, got {language_every}")
         if bev not in ("merged", "own"):
             raise ValueError(f"bev must be 'merged' or 'own', got {bev!r}")
         self.partner_requests = partner_requests
         self.bev = bev
+        self.camera_jpeg = camera_jpeg
         self.checkpoint = resolve_checkpoint(checkpoint, self.cooperative)
         self.language_every = language_every
         self.max_new_tokens = max_new_tokens
@@ -182,7 +141,7 @@ class V2VVLAAgent(Agent):
             device = self.device or ("cuda" if torch.cuda.is_available() else "cpu")
             self.model = load_checkpoint(self.checkpoint, device, self.cooperative)
         k = len(route.cavs)
-        self.targets = TargetPoints(route.cavs)
+        self.row_builder = RowBuilder(route.cavs)
         self.controller = WaypointController(k)
         self.talked = np.zeros(k, bool)  # has generated language at least once
         self.last_text = [""] * k
@@ -190,31 +149,14 @@ class V2VVLAAgent(Agent):
         self.cav_index = np.zeros(0, np.int64)
 
     def rows(self, obs: Observations) -> list[dict[str, Any]]:
-        """The model's input rows of the active CAVs (the dataset's columns)."""
-        assert obs.camera is not None and obs.other_cavs is not None
-        pos = np.stack([obs.x, obs.y], axis=1)
-        targets = to_ego(
-            self.targets.next_two(obs.cav_index, pos), obs.x[:, None], obs.y[:, None], obs.yaw[:, None]
-        )
-        bev = None
+        """The model's input rows of the active CAVs, as the dataset has them (the row contract,
+        :class:`~cmudrive.model.row.RowBuilder`). Advances the CAVs' progress along their plans: once a
+        tick."""
+        grid = None
         if self.cooperative:
             grid = obs.merged_occupancy if self.bev == "merged" else obs.occupancy
             assert grid is not None
-            bev = occupancy_to_rgb(grid)  # (n, H, W, 3), the dataset's merged_bev
-        out = []
-        for a in range(len(obs.cav_index)):
-            rel = obs.other_cavs[a]
-            others = [[float(j), *map(float, rel[j])] for j in np.flatnonzero(~np.isnan(rel[:, 0]))]
-            row = {
-                "camera": obs.camera[a],
-                "speed": float(obs.speed[a]),
-                "target_points": targets[a].astype(np.float32),
-                "other_cavs": others,
-            }
-            if bev is not None:
-                row["merged_bev"] = bev[a]
-            out.append(row)
-        return out
+        return self.row_builder.model_rows(self.row_builder.inputs(obs, grid), jpeg=self.camera_jpeg)
 
     def run_step(self, obs: Observations) -> Controls:
         idx = np.asarray(obs.cav_index, np.int64)

@@ -1,0 +1,173 @@
+"""The row contract: the closed-loop V2V-VLA agent builds, from the same state, the very rows that data
+collection stores (target points, other CAVs, speed, BEV image, camera, prompt), on a committed smoke route
+driven by the expert with collection on, traffic and pedestrians included."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from cmudrive.agents.base import Observations, RouteSetup, load_agent_class
+from cmudrive.agents.expert import ExpertAgent
+from cmudrive.bench.evaluator import EvalConfig, evaluate_route
+from cmudrive.bench.observe import ObservationBuilder
+from cmudrive.bench.records import STATUS_AGENT_CRASHED, STATUS_SIM_CRASHED
+from cmudrive.bench.routes import read_routes
+from cmudrive.data.collector import CollectingAgent, RouteInfo
+from cmudrive.data.schema import features, pack_occupancy
+from cmudrive.data.shards import ShardWriter, load_shards
+from cmudrive.maps import load_scenery
+from cmudrive.sim.weather import get_weather
+
+ROUTES = Path(__file__).resolve().parents[1] / "cmudrive" / "assets" / "routes"
+ROUTE = "smoke_01"  # downtown, 2 CAVs, rain: turns (target points move on), traffic, pedestrians
+TICKS = 300
+
+
+class Twin(CollectingAgent):
+    """Collects as usual; beside it, the closed-loop agent (no model) gets every tick the observations the
+    evaluator would give it, from the same snapshot, and builds its rows, kept for the sample ticks."""
+
+    def setup(self, route: RouteSetup) -> None:
+        super().setup(route)
+        self.agent: Any = load_agent_class("v2v-vla")()
+        self.agent.model = object()  # rows only: no checkpoint is loaded
+        plans = tuple(replace(c, dense_route=None) for c in route.cavs)  # what a non-privileged agent gets
+        self.agent.setup(RouteSetup(route.route_id, route.town, route.weather, route.dt, plans))
+        assert route.road_map is not None
+        self.agent_observer = ObservationBuilder(
+            type(self.agent).observations,
+            len(route.cavs),
+            get_weather(route.weather),
+            load_scenery(route.road_map),
+            rng=np.random.default_rng([self.seed, 1]),  # as the evaluator seeds its sensors
+            road_map=route.road_map,
+        )
+        self.agent_rows: dict[tuple[int, int], tuple[dict[str, Any], np.ndarray]] = {}
+
+    def run_step(self, obs: Observations) -> Any:
+        controls = super().run_step(obs)
+        snap = obs.snapshot
+        assert snap is not None
+        rows, index = snap.cav_rows()
+        order = {int(k): int(r) for r, k in zip(rows, index, strict=True)}
+        snap_rows = np.array([order[int(k)] for k in obs.cav_index], np.int64)
+        seen = self.agent_observer.build(snap, obs.tick, snap_rows, obs.cav_index, privileged=False)
+        built = self.agent.rows(seen)
+        assert seen.merged_occupancy is not None
+        if obs.tick % self.sample_every == 0:
+            for a, k in enumerate(obs.cav_index):
+                self.agent_rows[(int(k), obs.tick)] = (built[a], pack_occupancy(seen.merged_occupancy[a]))
+        return controls
+
+
+@pytest.fixture(scope="module")
+def collected(tmp_path_factory: pytest.TempPathFactory) -> tuple[Any, dict[tuple[int, int], Any]]:
+    spec = next(s for s in read_routes(ROUTES / "smoke.xml") if s.id == ROUTE)
+    out = tmp_path_factory.mktemp("rows")
+    writer = ShardWriter(out, spec.id, features().arrow_schema)
+    made: list[Twin] = []
+
+    def make() -> Twin:
+        info = RouteInfo(spec.id, "", spec.weather, spec.town, len(spec.cavs))
+        made.append(Twin(ExpertAgent(), info, writer, seed=spec.seed))
+        return made[-1]
+
+    result = evaluate_route(spec, make, EvalConfig(tick_cap=TICKS))
+    assert result.status not in (STATUS_AGENT_CRASHED, STATUS_SIM_CRASHED), result.error
+    made[0].finish()
+    return load_shards(out), made[0].agent_rows
+
+
+def test_the_agent_builds_the_rows_collection_stores(collected: tuple[Any, dict]) -> None:
+    ds, agent_rows = collected
+    assert len(ds) == len(agent_rows) == 2 * (TICKS // 5)
+    moved = 0
+    for i in range(len(ds)):
+        stored = ds[i]
+        row, merged = agent_rows[(stored["cav"], stored["tick"])]
+        where = f"CAV {stored['cav']} tick {stored['tick']}"
+        # the sensors: the agent's merged occupancy is the stored one
+        assert np.array_equal(merged, np.asarray(stored["merged_occupancy"], np.uint8)), where
+        target = np.asarray(stored["target_points"], np.float32)
+        assert np.array_equal(np.asarray(row["target_points"], np.float32), target), (
+            where,
+            row["target_points"],
+            target,
+        )
+        moved += int(target[0, 0] < 15.0)  # a target point close ahead: the next one comes soon
+        assert row["other_cavs"] == stored["other_cavs"], where
+        assert row["speed"] == stored["speed"], where
+        assert np.array_equal(
+            np.asarray(row["merged_bev"]), np.asarray(stored["merged_bev"].convert("RGB"))
+        ), where
+        camera = np.asarray(stored["camera"].convert("RGB"))
+        assert np.array_equal(np.asarray(row["camera"]), camera), (
+            where,
+            np.abs(np.asarray(row["camera"], np.int16) - camera).mean(),
+        )
+    assert moved > 0  # the route reaches target points, so their hand-over is compared too
+
+
+def test_the_prompt_and_pixels_the_model_reads_are_the_same(collected: tuple[Any, dict]) -> None:
+    pytest.importorskip("transformers", reason="the processor's tokenizer needs the 'model' extra")
+    from cmudrive.model import get_config
+    from cmudrive.model.processor import VLAProcessor
+
+    ds, agent_rows = collected
+    processor = VLAProcessor.from_config(get_config("tiny"))
+    for i in range(0, len(ds), 7):
+        stored = ds[i]
+        row, _ = agent_rows[(stored["cav"], stored["tick"])]
+        assert processor.prompt(row) == processor.prompt(stored)
+        assert np.array_equal(processor.pixel_values(row), processor.pixel_values(stored))
+
+
+def test_the_stored_columns_decode_to_the_model_rows() -> None:
+    """Without a route: what the collector stores, decoded as training decodes it, is what the closed loop
+    feeds the model (camera through JPEG, BEV through the palette PNG, float32 numbers)."""
+    from cmudrive.agents.base import CavPlan
+    from cmudrive.model.row import RowBuilder
+    from cmudrive.sensors.occupancy import occupancy_to_rgb
+
+    rng = np.random.default_rng(0)
+    plan = CavPlan("cav", np.array([[0.0, 0.0], [50.0, 0.0], [50.0, 50.0]]), np.zeros(3, np.int8), np.ones(3))
+    builder = RowBuilder((plan, plan, plan))
+    camera = np.repeat(np.linspace(0, 255, 256, dtype=np.uint8)[None, None, :, None], 128, 1)
+    camera = np.repeat(np.repeat(camera, 3, 3), 2, 0)
+    camera[:, 60:80, 100:140] = rng.integers(0, 256, (2, 20, 40, 3))  # edges: JPEG changes them
+    grid = rng.random((2, 4, 192, 128)) < 0.05
+    relative = np.full((2, 3, 3), np.nan)
+    relative[0, 2], relative[1, 0] = (10.123456789, -2.5, 0.1), (-10.1, 2.5, -0.1)
+    obs = Observations(
+        tick=3, time=0.15, cav_index=np.array([0, 2]), x=np.array([20.0, 48.0]), y=np.zeros(2),
+        yaw=np.array([0.0, np.pi / 2]), speed=np.array([4.123456789, 0.0]), accel=np.zeros(2),
+        other_cavs=relative, camera=camera, merged_occupancy=grid,
+    )  # fmt: skip
+    inputs = builder.inputs(obs, grid)
+    stored, rows = builder.stored(inputs), builder.model_rows(inputs)
+    spec = features()  # the shards' features decode the images, as training reads them
+    for a in range(2):
+        assert np.array_equal(
+            rows[a]["camera"], np.asarray(spec["camera"].decode_example(stored["camera"][a]))
+        )
+        assert np.array_equal(
+            rows[a]["merged_bev"], np.asarray(spec["merged_bev"].decode_example(stored["merged_bev"][a]))
+        )
+        assert rows[a]["other_cavs"] == stored["other_cavs"][a] and rows[a]["speed"] == stored["speed"][a]
+    assert np.array_equal(rows[0]["merged_bev"], occupancy_to_rgb(grid)[0])  # one palette
+    assert not np.array_equal(rows[0]["camera"], camera[0])  # JPEG in closed loop, as in training
+    assert np.array_equal(builder.model_rows(inputs, jpeg=False)[0]["camera"], camera[0])
+    assert rows[0]["other_cavs"] == [[2.0, float(np.float32(10.123456789)), -2.5, float(np.float32(0.1))]]
+    assert rows[0]["speed"] == float(np.float32(4.123456789))
+    # CAV 0 at x = 20 on the first leg: (50, 0) and (50, 50) ahead; CAV 2 at (48, 0) heading north: the
+    # corner is 2 m away (reached), so (50, 50) twice, 50 m ahead and 2 m to the right
+    np.testing.assert_allclose(rows[0]["target_points"], [[30.0, 0.0], [30.0, 50.0]], atol=1e-5)
+    np.testing.assert_allclose(rows[1]["target_points"], [[50.0, -2.0], [50.0, -2.0]], atol=1e-5)
+    assert builder.target_points(obs) is inputs.target_points  # once per tick: the same answer again
+    with pytest.raises(ValueError, match="other CAVs"):
+        builder.target_points(replace(obs, cav_index=np.array([0, 1])))
