@@ -562,6 +562,16 @@ def _route_progress(path: Path, total: int, tick_cap: int) -> Iterator[tuple[Any
         yield on_progress, done
 
 
+# --routes-subset of eval and data collect (bench.route_sets.select_subset)
+RoutesSubset = Annotated[
+    str | None,
+    typer.Option(
+        help="only these routes of the file: ids, 0-based indices and inclusive index ranges, "
+        "comma-separated (Accident_0,HighwayCutIn_2 or 0-5 or 3,7,12; an exact id wins)"
+    ),
+]
+
+
 @app.command("eval")
 def evaluate(
     routes: Annotated[
@@ -570,13 +580,7 @@ def evaluate(
             help="route file (.xml) or a committed route set: cmudrive44, cmudrive220, smoke, training"
         ),
     ] = "cmudrive44",
-    routes_subset: Annotated[
-        str | None,
-        typer.Option(
-            help="only these routes of the file: ids, 0-based indices and inclusive index ranges, "
-            "comma-separated (Accident_0,HighwayCutIn_2 or 0-5 or 3,7,12; an exact id wins)"
-        ),
-    ] = None,
+    routes_subset: RoutesSubset = None,
     agent: Annotated[
         str,
         typer.Option(
@@ -735,13 +739,7 @@ def data_collect(
     routes: Annotated[
         str, typer.Option(help="route file (.xml) or a committed route set (training; never the benchmark's)")
     ] = "training",
-    routes_subset: Annotated[
-        str | None,
-        typer.Option(
-            help="only these routes of the file: ids, 0-based indices and inclusive index ranges, "
-            "comma-separated (Accident_0,HighwayCutIn_2 or 0-5 or 3,7,12; an exact id wins)"
-        ),
-    ] = None,
+    routes_subset: RoutesSubset = None,
     out: Annotated[Path, typer.Option(help="dataset folder: one <route>.parquet shard per route")] = Path(
         "data/train"
     ),
