@@ -4,7 +4,7 @@ real time (20 ticks per second of simulated time).
 
     python benchmarks/closed_loop.py [--agent v2v-vla|v2v-vla-baseline|expert] [--checkpoint DIR]
                                      [--route InterurbanAdvancedActorFlow_0] [--ticks 400] [--threads 2]
-                                     [--language-every 5]
+                                     [--language-every 5] [--agent-option camera_jpeg=false]
 
 Runs in this process, as a ``cmudrive eval`` worker does (the same environment: ``--threads`` intra-op
 threads, OpenMP threads that spin briefly then sleep). The first ``--skip`` ticks (JIT warm-up, the
@@ -15,6 +15,7 @@ per tick, the real-time factor (simulated seconds per wall second) and, last, ``
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import statistics
 import sys
@@ -32,6 +33,9 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=os.cpu_count() or 1)
     parser.add_argument(
         "--language-every", type=int, default=None, help="V2V-VLA agents: ticks between language ticks"
+    )
+    parser.add_argument(
+        "--agent-option", action="append", default=[], help="KEY=VALUE for the agent's constructor (JSON)"
     )
     args = parser.parse_args()
     for name in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
@@ -53,6 +57,12 @@ def main() -> None:
     options: dict[str, Any] = {"checkpoint": args.checkpoint} if args.checkpoint else {}
     if args.language_every is not None:
         options["language_every"] = args.language_every
+    for item in args.agent_option:
+        key, _, value = item.partition("=")
+        try:
+            options[key] = json.loads(value)
+        except json.JSONDecodeError:
+            options[key] = value
     factory = agent_factory(load_agent_class(args.agent), options)
 
     spent = {"agent": [0.0] * (args.ticks + 1), "sim": [0.0] * (args.ticks + 1)}
@@ -81,6 +91,7 @@ def main() -> None:
     print(
         f"{args.agent} on {spec.id} ({len(spec.cavs)} CAVs), ticks {args.skip}-{n}, {args.threads} threads"
         + (f", language every {args.language_every} ticks" if args.language_every else "")
+        + "".join(f", {item}" for item in args.agent_option)
     )
     for name, values in (("agent", agent), ("simulator", sim)):
         median, average = statistics.median(values), statistics.mean(values)
