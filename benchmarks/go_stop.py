@@ -1,16 +1,22 @@
-"""Does a model brake where the expert brakes? SimLingo's controller decision on held-out rows.
+"""Does a model go and stop where the expert does? The controller's one decision, on held-out rows.
 
-    python benchmarks/go_stop.py --data data/train [--rows 3000] [--threads 2]
-        [--checkpoint cmudrive/assets/models/v2v-vla-tiny ...]
+    python benchmarks/go_stop.py --data data/train [--rows 20000] [--threads 2]
+        [--checkpoint cmudrive/assets/models/v2v-vla-tiny-no-speed ...]
 
-A waypoint model's waypoint errors say little about the one decision that its closed-loop score hangs on:
-SimLingo's controller brakes when the desired speed read from the 0.25 s and 0.75 s speed waypoints is
-below 0.4 m/s or exceeded by 10 % (:func:`cmudrive.agents.control.brakes`), and drives otherwise. This
-script applies that rule to the expert's speed waypoints and to each model's, on the validation rows of
-``cmudrive train``'s default split (every k-th row up to ``--rows``), and prints, for rows where the CAV
-stands (below 0.1 m/s) and where it moves, how often the model drives where the expert drives and brakes
-where the expert brakes. A model that copies its speed input starts in few of the "stands, expert
-drives" rows; one that does not see the road stops in few of the "moves, expert brakes" rows.
+A waypoint model's waypoint errors say little about the one decision its closed-loop score hangs on:
+whether the controller brakes. **The expert's decision** is SimLingo's brake rule
+(:func:`cmudrive.agents.control.brakes`: a desired speed below 0.4 m/s, or one the CAV exceeds by more
+than 10 %) applied to the expert's own target speed (``target_speed``: where its speed controller means
+to be in 0.5 s; it holds the brake below 0.3 m/s). **A model's decision**: its stop probability above 0.5
+for a model with a speed query (``speed_query``), else the same rule applied to the desired speed that
+SimLingo's controller reads from its speed waypoints (0.25 s to 0.75 s). The first line of the table
+applies that waypoint rule to the expert's own speed waypoints: what a perfect copy of the expert's
+waypoints would decide.
+
+Rows are the validation routes of ``cmudrive train``'s default split (every k-th row up to ``--rows``),
+counted per situation: the CAV stands (below 0.1 m/s) and the expert drives off or stays; it moves and the
+expert drives on or brakes. Printed: the share of rows where the decision is the expert's, per situation
+and over all rows.
 """
 
 from __future__ import annotations
@@ -19,31 +25,60 @@ import argparse
 
 import numpy as np
 import torch
-from ablation import held_out_rows, predicted_waypoints
+from ablation import held_out_rows
 
 from cmudrive.agents.control import STOPPED_SPEED, brakes, desired_speed
 from cmudrive.model import V2VVLA
 
+SITUATIONS = (
+    "stands, expert drives off",
+    "stands, expert stays",
+    "moves, expert drives",
+    "moves, expert brakes",
+)
 
-def decision_table(speed: np.ndarray, expert: np.ndarray, model: np.ndarray) -> dict[str, tuple[float, int]]:
-    """Agreement of the model's brake decisions with the expert's, per situation: name -> (share of the
-    rows where the model decides as the expert, number of rows)."""
-    expert_brakes = brakes(speed, desired_speed(expert))
-    model_brakes = brakes(speed, desired_speed(model))
+
+def situations(speed: np.ndarray, expert_stops: np.ndarray) -> dict[str, np.ndarray]:
+    """Row masks of the four situations."""
     standing = speed < STOPPED_SPEED
-    cases = {
-        "stands, expert drives": standing & ~expert_brakes,
-        "stands, expert stays": standing & expert_brakes,
-        "moves, expert drives": ~standing & ~expert_brakes,
-        "moves, expert brakes": ~standing & expert_brakes,
-    }
-    return {
-        name: (
-            float(np.mean(model_brakes[mask] == expert_brakes[mask])) if mask.any() else float("nan"),
-            int(mask.sum()),
+    return dict(
+        zip(
+            SITUATIONS,
+            (
+                standing & ~expert_stops,
+                standing & expert_stops,
+                ~standing & ~expert_stops,
+                ~standing & expert_stops,
+            ),
+            strict=True,
         )
-        for name, mask in cases.items()
+    )
+
+
+def decision_table(
+    speed: np.ndarray, expert_stops: np.ndarray, stops: np.ndarray
+) -> dict[str, tuple[float, int]]:
+    """Agreement of the decisions ``stops`` (N,) bool with the expert's, per situation and over all rows:
+    name -> (share of the rows where they agree, number of rows)."""
+    masks = {**situations(speed, expert_stops), "all rows": np.ones(len(speed), bool)}
+    return {
+        name: (float(np.mean(stops[m] == expert_stops[m])) if m.any() else float("nan"), int(m.sum()))
+        for name, m in masks.items()
     }
+
+
+def model_stops(model: V2VVLA, rows: list[dict], speed: np.ndarray, batch: int = 64) -> np.ndarray:
+    """(N,) bool: the model's brake decisions on ``rows`` (no language)."""
+    out = []
+    with torch.no_grad():
+        for i in range(0, len(rows), batch):
+            pred = model.predict(rows[i : i + batch], max_new_tokens=0)
+            if pred.stop_prob is not None:
+                out.append(pred.stop_prob.float().numpy() > 0.5)
+            else:
+                wp = pred.speed_waypoints.float().numpy().astype(np.float64)
+                out.append(brakes(speed[i : i + batch], desired_speed(wp)))
+    return np.concatenate(out)
 
 
 def main() -> None:
@@ -54,7 +89,7 @@ def main() -> None:
     parser.add_argument(
         "--checkpoint",
         action="append",
-        help="model directory, repeatable (default: the two committed tiny checkpoints)",
+        help="model directory, repeatable (default: the two committed default checkpoints)",
     )
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
@@ -64,20 +99,22 @@ def main() -> None:
     ]
     _, rows, _ = held_out_rows(args.data, args.rows)
     speed = np.array([float(r["speed"]) for r in rows])
-    expert = np.stack([np.asarray(r["speed_waypoints"], np.float64) for r in rows])
-    tables = {}
+    expert_stops = brakes(speed, np.array([float(r["target_speed"]) for r in rows]))
+    expert_wp = np.stack([np.asarray(r["speed_waypoints"], np.float64) for r in rows])
+    tables = {
+        "the expert's speed waypoints, SimLingo's rule": decision_table(
+            speed, expert_stops, brakes(speed, desired_speed(expert_wp))
+        )
+    }
     for path in checkpoints:
         model = V2VVLA.from_pretrained(path).eval()
-        tables[path] = decision_table(
-            speed, expert, predicted_waypoints(model, rows)[1].numpy().astype(np.float64)
-        )
-    names = list(next(iter(tables.values())))
+        tables[path] = decision_table(speed, expert_stops, model_stops(model, rows, speed))
     counts = next(iter(tables.values()))
-    print(f"{len(rows)} held-out rows; share of rows where the model decides as the expert:")
-    print("| checkpoint | " + " | ".join(f"{n} ({counts[n][1]})" for n in names) + " |")
-    print("|---|" + "---|" * len(names))
-    for path, table in tables.items():
-        print(f"| {path} | " + " | ".join(f"{table[n][0]:.1%}" for n in names) + " |")
+    print(f"{len(rows)} held-out rows; share of rows where the decision is the expert's:")
+    print("| decisions of | " + " | ".join(f"{n} ({c[1]})" for n, c in counts.items()) + " |")
+    print("|---|" + "---|" * len(counts))
+    for name, table in tables.items():
+        print(f"| {name} | " + " | ".join(f"{v[0]:.1%}" for v in table.values()) + " |")
 
 
 if __name__ == "__main__":

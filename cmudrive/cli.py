@@ -1031,6 +1031,19 @@ def train_model(
     speed_dropout: Annotated[
         float, typer.Option(help="share of training rows whose prompt leaves the speed out")
     ] = 0.0,
+    bucket_power: Annotated[
+        float | None,
+        typer.Option(
+            help="bucketed sampling: bucket shares (starts, stands, stops, turns, follows, slows, cruises) "
+            "proportional to count ** P; 1 samples as collected, 0 equal shares (default: no buckets)"
+        ),
+    ] = None,
+    threads: Annotated[
+        int | None,
+        typer.Option(
+            min=1, help="torch threads of this process (default: torch's choice; 1 per process on a CPU)"
+        ),
+    ] = None,
     num_workers: Annotated[int, typer.Option(min=0, help="DataLoader worker processes")] = 0,
     mixed_precision: Annotated[
         str, typer.Option(help="auto (bf16/fp16 on GPUs, none on CPU), no, fp16, bf16")
@@ -1043,10 +1056,14 @@ def train_model(
     """Train V2V-VLA (or --baseline) on a dataset folder; the same command on a CPU, one GPU or several
     (accelerate launch -m cmudrive.cli train ...)."""
     try:
+        import torch
+
         from cmudrive.model.augment import YawAugment
         from cmudrive.model.train import TrainConfig, train
     except ImportError as exc:
         _fail(ImportError(f"training needs the model extra (pip install -e '.[model]'): {exc}"))
+    if threads is not None:
+        torch.set_num_threads(threads)
     try:
         cfg = TrainConfig(
             data=str(data),
@@ -1065,6 +1082,7 @@ def train_model(
             communication_repeat=communication_repeat,
             speed_input=speed_input,
             speed_dropout=speed_dropout,
+            bucket_power=bucket_power,
             num_workers=num_workers,
             mixed_precision=mixed_precision,
             augment=YawAugment(prob=augment_prob),

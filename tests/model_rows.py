@@ -10,7 +10,7 @@ from PIL import Image
 
 def make_row(i: int, seed: int = 0) -> dict[str, Any]:
     """Row ``i``: random camera (256 x 128) and merged BEV (128 wide x 192 tall), a straight path bending
-    with ``i``, CAV 3 named as partner on odd rows."""
+    with ``i``, CAV 3 named as partner and the expert stopping on odd rows."""
     rng = np.random.default_rng(seed + i)
     forward = np.stack([np.arange(1, 21, dtype=float), 0.05 * i * np.arange(1, 21) ** 1.5 / 10], axis=1)
     return {
@@ -21,6 +21,7 @@ def make_row(i: int, seed: int = 0) -> dict[str, Any]:
         "other_cavs": [[3, 12.0, -3.5, 0.1], [7, 95.0, 0.0, 0.0], [2, -6.0, 1.0, 3.1]][: 1 + i % 3],
         "path": forward,
         "speed_waypoints": np.stack([np.arange(1, 11) * (0.5 + 0.2 * i), np.zeros(10)], axis=1),
+        "target_speed": 0.0 if i % 2 else 2.5 + i,  # [m/s] the expert stops on odd rows
         "commentary": ["Follow the route. Accelerate.", "Turn left. Stop now because of the red light."][
             i % 2
         ],

@@ -52,7 +52,9 @@ def test_forward_shapes_and_loss(model: V2VVLA) -> None:
     assert out.path is not None and out.path.shape == (3, 20, 2)
     assert out.speed_waypoints is not None and out.speed_waypoints.shape == (3, 10, 2)
     assert out.loss is not None and torch.isfinite(out.loss)
-    assert torch.allclose(out.loss, out.lm_loss + out.waypoint_loss)  # type: ignore[operator]
+    assert out.target_speed is not None and out.target_speed.shape == (3,) and (out.target_speed >= 0).all()
+    assert out.stop_logit is not None and out.stop_logit.shape == (3,)
+    assert torch.allclose(out.loss, out.lm_loss + out.waypoint_loss + out.speed_loss)  # type: ignore[operator]
     assert abs(out.lm_loss.item() - float(torch.log(torch.tensor(len(model.tokenizer))))) < 1.0  # ~uniform
 
 

@@ -22,6 +22,15 @@ def coop() -> VLAProcessor:
 
 
 @pytest.fixture(scope="module")
+def legacy() -> VLAProcessor:
+    """The committed checkpoints' inputs: 64 px tiles, bonnet crop, padded BEV, 4 CAVs spelt out."""
+    config = get_config(
+        "tiny", vision={"image_size": 64, "patch_size": 8}, bonnet_crop=4.8 / 16, bev_fit="pad"
+    ).replace(max_other_cavs=4, cav_tokens=False, speed_query=False)
+    return VLAProcessor.from_config(config)
+
+
+@pytest.fixture(scope="module")
 def baseline() -> VLAProcessor:
     return VLAProcessor.from_config(get_config("tiny", cooperative=False))
 
@@ -29,8 +38,8 @@ def baseline() -> VLAProcessor:
 def test_batch_shapes_and_left_padding(coop: VLAProcessor) -> None:
     batch = coop(rows(3))
     b = batch.input_ids.shape[0]
-    assert batch.pixel_values.shape == (3, 3, 3, 64, 64)  # 2 camera tiles + 1 BEV tile of 64 px
-    assert coop.tokens_per_image == 16  # (64 / 8)^2 patches, pixel shuffle 0.5 -> 16
+    assert batch.pixel_values.shape == (3, 3, 3, 128, 128)  # 2 camera tiles + 1 BEV tile of 128 px
+    assert coop.tokens_per_image == 16  # (128 / 16)^2 patches, pixel shuffle 0.5 -> 16
     assert batch.target_points.shape == (3, 2, 2)
     assert batch.path is not None and batch.path.shape == (3, 20, 2)
     assert batch.speed_waypoints is not None and batch.speed_waypoints.shape == (3, 10, 2)
@@ -41,6 +50,14 @@ def test_batch_shapes_and_left_padding(coop: VLAProcessor) -> None:
         assert (batch.input_ids[i, :n_pad] == coop.pad_token_id).all()
         assert int((batch.input_ids[i] == coop.image_token_id).sum()) == 3 * 16
         assert int((batch.input_ids[i] == coop.target_point_token_id).sum()) == 2
+    # one <CAV_POINT> per listed CAV (rows list 1, 2, 3 CAVs; CAV 7 at 95 m is out of range)
+    assert [int((batch.input_ids[i] == coop.cav_point_token_id).sum()) for i in range(b)] == [1, 1, 2]
+    assert batch.cav_poses is not None and np.allclose(
+        batch.cav_poses.numpy(), [[12.0, -3.5, 0.1], [12.0, -3.5, 0.1], [-6.0, 1.0, 3.1], [12.0, -3.5, 0.1]]
+    )  # row order, nearest first within a row
+    # speed labels: rows 0 and 2 go (target 2.5 + i m/s above their 2 + i m/s), row 1 stops (target 0)
+    assert batch.target_speed is not None and batch.target_speed.tolist() == [2.5, 0.0, 4.5]
+    assert batch.stop is not None and batch.stop.tolist() == [0.0, 1.0, 0.0]
     assert batch.answer_ids is not None and batch.labels is not None
     for i in range(b):  # answers apart, right-padded, each ending with its </s>
         n = int((batch.labels[i] != IGNORE_INDEX).sum())
@@ -59,10 +76,9 @@ def test_labels_cover_exactly_the_answer(coop: VLAProcessor) -> None:
         text == " Turn left. Stop now because of the red light. Communication: CAV 3 can see the pedestrian."
     )
     prompt = coop.tokenizer.decode(batch.input_ids[0].tolist(), skip_special_tokens=True)
-    # CAV 7 at 95 m is beyond the 70 m range; the target points are embeddings, not text
+    # CAV 7 at 95 m is beyond the 70 m range; target points and CAV poses are embeddings, not text
     assert prompt.endswith(
-        "\nCurrent speed: 3.0 m/s. Target waypoint: . Other CAVs: CAV 3 at (12, -4). "
-        "What should the ego do next?"
+        "\nCurrent speed: 3.0 m/s. Target waypoint: . Other CAVs: 3. What should the ego do next?"
     )
 
 
@@ -73,12 +89,22 @@ def test_prompt_only_batch_for_prediction(coop: VLAProcessor) -> None:
     assert coop.tokenizer.decode(batch.input_ids[0, -3:]).endswith("next?")
 
 
-def test_camera_tiles_crop_the_bonnet_and_split_left_right(coop: VLAProcessor) -> None:
+def test_camera_is_two_128_px_tiles_left_and_right_uncropped_unresized(coop: VLAProcessor) -> None:
+    """Our renderer draws no bonnet: tiny keeps the whole 256 x 128 camera, pixel for pixel."""
+    image = np.random.default_rng(0).integers(0, 256, (128, 256, 3), dtype=np.uint8)
+    tiles = coop.camera_tiles(image)
+    assert tiles.shape == (2, 3, 128, 128)
+    pixel = tiles * IMAGE_STD[None, :, None, None] + IMAGE_MEAN[None, :, None, None]  # back to [0, 1]
+    assert np.allclose(pixel[0].transpose(1, 2, 0) * 255, image[:, :128], atol=1e-3)
+    assert np.allclose(pixel[1].transpose(1, 2, 0) * 255, image[:, 128:], atol=1e-3)
+
+
+def test_legacy_camera_tiles_crop_the_bonnet_and_split_left_right(legacy: VLAProcessor) -> None:
     image = np.zeros((128, 256, 3), np.uint8)
     image[:, :128] = (255, 0, 0)  # left half red
     image[:, 128:] = (0, 0, 255)  # right half blue
     image[90:] = (255, 255, 255)  # bottom 38 rows (the bonnet, 4.8/16 of 128) white
-    tiles = coop.camera_tiles(image)
+    tiles = legacy.camera_tiles(image)
     assert tiles.shape == (2, 3, 64, 64)
     pixel = tiles * IMAGE_STD[None, :, None, None] + IMAGE_MEAN[None, :, None, None]  # back to [0, 1]
     assert np.allclose(pixel[0, :, 4:-4, 4:-4].mean(axis=(1, 2)), [1, 0, 0], atol=0.02)
@@ -97,21 +123,36 @@ def test_every_level_of_every_channel_is_normalised_as_imagenet() -> None:
     assert np.allclose(out, expected.transpose(0, 3, 1, 2), rtol=0, atol=1e-6)
 
 
-def test_bev_is_padded_to_a_square_not_stretched(coop: VLAProcessor) -> None:
-    bev = Image.new("RGB", (128, 192), (255, 255, 255))  # 128 wide, 192 tall: ego driving up
+def test_bev_fills_the_tile_half_a_metre_across_three_quarters_along(coop: VLAProcessor) -> None:
+    """The 64 m x 96 m grid (128 x 192 cells of 0.5 m) stretched to 128 x 128 px, no padding: 0.5 m per
+    pixel across, 0.75 m along the driving direction; a 1.5 m (3-cell) band becomes 2 px tall."""
+    bev = np.zeros((192, 128, 3), np.uint8)
+    bev[96:99] = 255  # a white band 3 cells tall across the grid, starting 48 m from the top
+    bev[:, :2] = (0, 255, 0)  # a green edge column
     tile = coop.bev_tile(bev)[0] * IMAGE_STD[:, None, None] + IMAGE_MEAN[:, None, None]
+    assert tile.shape == (3, 128, 128)
+    white = np.flatnonzero(tile[2].mean(axis=1) > 0.5)  # blue channel: only the band has it
+    assert white.min() >= 63 and white.max() <= 66  # 48 m / 0.75 m per px = row 64
+    assert tile[1, :, 0].min() > 0.9  # the grid's edge column is the tile's: no black margin
+
+
+def test_legacy_bev_is_padded_to_a_square_not_stretched(legacy: VLAProcessor) -> None:
+    bev = Image.new("RGB", (128, 192), (255, 255, 255))  # 128 wide, 192 tall: ego driving up
+    tile = legacy.bev_tile(bev)[0] * IMAGE_STD[:, None, None] + IMAGE_MEAN[:, None, None]
     assert tile.shape == (3, 64, 64)
     assert tile[:, :, 24:40].min() > 0.95  # the 128 px wide grid covers the middle 2/3
     assert tile[:, :, :8].max() < 0.05 and tile[:, :, -8:].max() < 0.05  # black margins left and right
 
 
-def test_other_cavs_in_range_nearest_first(coop: VLAProcessor) -> None:
-    text = coop.others_text([[5, 40.2, 0.4, 0.0], [9, 3.0, -4.2, 0.0], [1, 0.0, 71.0, 0.0]])
-    assert text == "Other CAVs: CAV 9 at (3, -4), CAV 5 at (40, 0)."  # CAV 1 is beyond 70 m
-    assert coop.others_text([]) == "Other CAVs: none."
-    many = coop.others_text([[k, float(k + 1), 0.0, 0.0] for k in range(12)])
-    assert coop.config.max_other_cavs == 4  # tiny lists the 4 nearest (the prompt is most of the cost)
-    assert many.count("CAV ") == 4 and "CAV 3 " in many and "CAV 4 " not in many
+def test_other_cavs_in_range_nearest_first(coop: VLAProcessor, legacy: VLAProcessor) -> None:
+    others = [[5, 40.2, 0.4, 0.0], [9, 3.0, -4.2, 0.0], [1, 0.0, 71.0, 0.0]]
+    assert coop.others_text(others) == "Other CAVs: 9<CAV_POINT> 5<CAV_POINT>."  # CAV 1 is beyond 70 m
+    assert legacy.others_text(others) == "Other CAVs: CAV 9 at (3, -4), CAV 5 at (40, 0)."
+    assert coop.others_text([]) == "Other CAVs: none." == legacy.others_text([])
+    many = [[k, float(k + 1), 0.0, 0.0] for k in range(12)]
+    assert coop.config.max_other_cavs == 8  # tiny lists the 8 nearest, about 3 tokens each
+    assert coop.others_text(many).count("<CAV_POINT>") == 8 and " 7<CAV_POINT>." in coop.others_text(many)
+    assert legacy.others_text(many).count("CAV ") == 4 and "CAV 4 " not in legacy.others_text(many)
 
 
 def test_speed_is_stated_unless_the_configuration_or_a_dropped_row_leaves_it_out(coop: VLAProcessor) -> None:
@@ -127,7 +168,7 @@ def test_speed_is_stated_unless_the_configuration_or_a_dropped_row_leaves_it_out
 def test_baseline_takes_no_bev_no_other_cavs_no_communication(baseline: VLAProcessor) -> None:
     row = make_row(1)
     batch = baseline([row])
-    assert batch.pixel_values.shape == (1, 2, 3, 64, 64)  # camera tiles only
+    assert batch.pixel_values.shape == (1, 2, 3, 128, 128)  # camera tiles only
     text = baseline.tokenizer.decode(batch.input_ids[0], skip_special_tokens=True)
     assert "CAV" not in text and "Communication" not in text
     changed = {**row, "merged_bev": None, "other_cavs": [[1, 5.0, 5.0, 0.0]], "communication": "x"}

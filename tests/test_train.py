@@ -222,7 +222,17 @@ def test_resuming_from_a_checkpoint_gives_the_same_weights_and_losses(data: Path
 def test_a_run_writes_logs_checkpoints_and_a_loadable_model(data: Path, tmp_path: Path) -> None:
     out = tmp_path / "run"
     metrics = train(config(data, out, max_steps=4, keep_checkpoints=1), progress=False)
-    assert set(metrics) == {"loss", "lm_loss", "waypoint_loss", "path_l2_m", "speed_l2_m"}
+    assert set(metrics) == {
+        "loss",
+        "lm_loss",
+        "waypoint_loss",
+        "path_l2_m",
+        "speed_l2_m",
+        "speed_loss",
+        "target_speed_err_mps",
+        "go_stop_agree",
+    }
+    assert 0.0 <= metrics["go_stop_agree"] <= 1.0
     log = [json.loads(ln) for ln in (out / "metrics.jsonl").read_text().splitlines()]
     train_lines = [r for r in log if r["split"] == "train"]
     assert [r["step"] for r in train_lines] == [1, 2, 3, 4]

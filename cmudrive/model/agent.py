@@ -14,7 +14,8 @@ Per tick, for the ``n`` active CAVs:
    depend on the language (the model's layout puts the queries before the answer), so the silent ticks
    drive exactly as the talking ones;
 3. SimLingo's controller (:class:`~cmudrive.agents.control.WaypointController`) turns the waypoints into
-   steer, throttle and brake;
+   steer, throttle and brake; a model with a speed query (``speed_query``) decides go/stop and the
+   desired speed itself (brake where its stop probability exceeds 0.5), the path still steers;
 4. the CAV named in each communication sentence becomes that CAV's partner from the next tick
    (:meth:`next_partners`; -1, the default closest CAV in front, when it names none).
 
@@ -42,6 +43,7 @@ MODELS = Path(__file__).resolve().parents[1] / "assets" / "models"
 DEFAULT_CHECKPOINT = MODELS / "v2v-vla-tiny-no-speed"
 DEFAULT_BASELINE_CHECKPOINT = MODELS / "v2v-vla-baseline-tiny-no-speed"
 LANGUAGE_EVERY = 5  # [ticks] generate language at 4 Hz (the dataset's sample rate)
+STOP_PROBABILITY = 0.5  # [-] a model with a speed query brakes where its stop probability exceeds this
 
 
 def resolve_checkpoint(checkpoint: str | Path | None, cooperative: bool) -> Path:
@@ -172,7 +174,13 @@ class V2VVLAAgent(Agent):
                 self.requested[int(k)] = pred.partner[a] if self.cooperative and self.partner_requests else -1
         path = pred.path.float().cpu().numpy().astype(np.float64)  # (n, 20, 2) ego frame [m]
         speed_wp = pred.speed_waypoints.float().cpu().numpy().astype(np.float64)  # (n, 10, 2)
-        steer, throttle, brake = self.controller(idx, np.asarray(obs.speed, np.float64), path, speed_wp)
+        target_speed = stop = None
+        if pred.target_speed is not None and pred.stop_prob is not None:  # go/stop from the speed query
+            target_speed = pred.target_speed.float().cpu().numpy().astype(np.float64)
+            stop = pred.stop_prob.float().cpu().numpy() > STOP_PROBABILITY
+        steer, throttle, brake = self.controller(
+            idx, np.asarray(obs.speed, np.float64), path, speed_wp, target_speed, stop
+        )
         return Controls(steer=steer, throttle=throttle, brake=brake)
 
     def next_partners(self) -> np.ndarray | None:

@@ -1,9 +1,10 @@
 """Configuration of V2V-VLA: frozen dataclasses, named configurations, unknown keys rejected.
 
 Importing this module needs no torch; :mod:`cmudrive.model.modeling` turns a :class:`ModelConfig` into a
-model. Three named configurations (:func:`get_config`):
+model. Four named configurations (:func:`get_config`):
 
-- ``tiny``: a few million parameters, random initialisation, trains on a 2-core CPU; 64 px tiles.
+- ``tiny``: under a million parameters, random initialisation, trains on a 2-core CPU; 128 px tiles.
+- ``tiny-v1``: ``tiny`` with the inputs of the checkpoints committed before (64 px tiles), to reproduce them.
 - ``small``: tens of millions of parameters, random initialisation, 224 px tiles (a GPU run).
 - ``internvl2-1b``: the paper's size; the backbone (InternViT-300M + MLP projector + Qwen2-0.5B) and its
   tokenizer are read with ``from_pretrained`` from ``pretrained_path``, a local directory in the Hugging
@@ -92,13 +93,25 @@ class ModelConfig:
     attn_implementation: str = "sdpa"
     # Inputs
     camera_tiles: int = 2  # the front camera becomes this many square tiles side by side
-    bonnet_crop: float = 4.8 / 16  # fraction of the camera image cut off at the bottom (SimLingo)
+    # fraction of the camera image cut off at the bottom: SimLingo's 4.8/16 removes CARLA's bonnet; our
+    # renderer draws no bonnet, so tiny and small keep the whole image (0.0); the field's default stays
+    # SimLingo's for checkpoints saved before the field changed
+    bonnet_crop: float = 4.8 / 16
+    # how the merged BEV render (W x H = 128 x 192 cells of 0.5 m, ego driving up) becomes one S x S tile:
+    # "pad": resized keeping its aspect and centred on black (1.5 m per pixel at 64 px, a third black);
+    # "stretch": the whole render resized to S x S, no padding (at 128 px: 0.5 m per pixel across, 0.75 m
+    # along the driving direction)
+    bev_fit: str = "pad"
     target_point_hidden: tuple[int, ...] = (256, 512)  # MLP 2 -> ... -> LLM hidden, ReLU
     target_point_scale: float = 10.0  # [m] target points are divided by this before the MLP
     # the prompt states the CAV's speed (SimLingo); False: the model sees no speed and must judge from its
     # images whether to go (a speed-fed model copies its speed: "standing stays standing", docs/model.md)
     speed_in_prompt: bool = True
     max_other_cavs: int = 8  # the nearest ones are listed in the prompt
+    # the other CAVs in the prompt as "<id><CAV_POINT>", one embedding per CAV from an MLP of its pose
+    # (x, y [m] / target_point_scale, cos yaw, sin yaw) like the target points (about 3 tokens a CAV), instead
+    # of "CAV 3 at (12, -3)" spelt in digits (about 11 tokens, whole metres, no heading)
+    cav_tokens: bool = False
     other_cavs_range_m: float = 70.0  # [m] CAVs farther than this are not listed (V2V range)
     task_prompt: str = "What should the ego do next?"
     chat_template: bool = False  # wrap the prompt with the tokenizer's chat template (Qwen2 chat models)
@@ -107,6 +120,11 @@ class ModelConfig:
     n_speed: int = 10  # speed waypoints, 0.25 s apart
     waypoint_head_hidden: int = 256
     max_answer_tokens: int = 96  # longer answers are cut (training) / generation stops (inference)
+    # one more query after the waypoint queries, read by a head that predicts the expert's target speed
+    # [m/s] (where it means to be in 0.5 s) and whether it stops (brakes to a stand or holds): the
+    # controller's go/stop and desired speed come from it instead of from the speed waypoints
+    # (docs/model.md, "Go/stop")
+    speed_query: bool = False
 
     def __post_init__(self) -> None:
         if self.pretrained_path is not None and (self.vision is not None or self.text is not None):
@@ -120,8 +138,15 @@ class ModelConfig:
             )
         if not 0.0 <= self.bonnet_crop < 1.0:
             raise ValueError(f"bonnet_crop must be in [0, 1), got {self.bonnet_crop}")
+        if self.bev_fit not in ("pad", "stretch"):
+            raise ValueError(f"bev_fit must be pad or stretch, got {self.bev_fit!r}")
         if self.llm_training not in ("lora", "full", "frozen"):
             raise ValueError(f"llm_training must be lora, full or frozen, got {self.llm_training!r}")
+
+    @property
+    def n_queries(self) -> int:
+        """Learnable queries after the prompt: path, speed waypoints and, with ``speed_query``, one more."""
+        return self.n_path + self.n_speed + (1 if self.speed_query else 0)
 
     @property
     def n_images(self) -> int:
@@ -168,6 +193,26 @@ def _from_dict(cls: type[T], data: dict[str, Any]) -> T:
 NAMED_CONFIGS: dict[str, ModelConfig] = {
     "tiny": ModelConfig(
         name="tiny",
+        # 128 px tiles of 16 px patches: the camera at its stored resolution (2 tiles of 256 x 128, no
+        # resize), the same 16 tokens per tile as the 64 px / 8 px tiles before (docs/model.md)
+        vision=VisionConfig(
+            hidden_size=96, num_layers=1, num_heads=4, intermediate_size=256, image_size=128, patch_size=16
+        ),
+        text=TextConfig(hidden_size=128, num_layers=2, num_heads=4, num_kv_heads=2, intermediate_size=256),
+        llm_training="full",
+        bonnet_crop=0.0,
+        bev_fit="stretch",
+        target_point_hidden=(32, 64),
+        waypoint_head_hidden=64,
+        max_other_cavs=8,
+        cav_tokens=True,
+        speed_query=True,
+    ),
+    # tiny as the pairs committed before the inputs changed (docs/model.md, "Inputs"): 64 px tiles of 8 px
+    # patches, SimLingo's bonnet crop, the BEV padded to a square, 4 CAVs spelt out, go/stop read from the
+    # speed waypoints; kept to reproduce and compare them
+    "tiny-v1": ModelConfig(
+        name="tiny-v1",
         vision=VisionConfig(
             hidden_size=96, num_layers=1, num_heads=4, intermediate_size=256, image_size=64, patch_size=8
         ),
@@ -184,8 +229,12 @@ NAMED_CONFIGS: dict[str, ModelConfig] = {
         ),
         text=TextConfig(hidden_size=512, num_layers=8, num_heads=8, num_kv_heads=2, intermediate_size=1408),
         llm_training="full",
+        bonnet_crop=0.0,
+        bev_fit="stretch",
         target_point_hidden=(128, 256),
         waypoint_head_hidden=128,
+        cav_tokens=True,
+        speed_query=True,
     ),
 }
 

@@ -178,6 +178,38 @@ class TargetPointEncoder(nn.Module):
         return self.mlp(points / self.scale)  # (B, 2, 2) [m] -> (B, 2, H)
 
 
+class CavPoseEncoder(nn.Module):
+    """MLP of another CAV's pose -> LLM embedding: (x / scale, y / scale, cos yaw, sin yaw) -> hidden ->
+    H, ReLU; one embedding per ``<CAV_POINT>`` of the prompt (``cav_tokens``)."""
+
+    def __init__(self, hidden: tuple[int, ...], out_size: int, scale: float) -> None:
+        super().__init__()
+        sizes = [4, *hidden]
+        layers: list[nn.Module] = []
+        for a, b in itertools.pairwise(sizes):
+            layers += [nn.Linear(a, b), nn.ReLU()]
+        self.mlp = nn.Sequential(*layers, nn.Linear(sizes[-1], out_size))
+        self.scale = scale  # [m]
+
+    def forward(self, poses: torch.Tensor) -> torch.Tensor:
+        """(M, 3) x, y [m], yaw [rad] -> (M, H)."""
+        xy, yaw = poses[:, :2] / self.scale, poses[:, 2:3]
+        return self.mlp(torch.cat([xy, torch.cos(yaw), torch.sin(yaw)], dim=-1))
+
+
+class SpeedHead(nn.Module):
+    """The speed query's hidden state -> the target speed [m/s] (where the expert means to be in 0.5 s,
+    >= 0) and the logit of stopping (SimLingo's brake rule for that target at the current speed)."""
+
+    def __init__(self, in_size: int, hidden: int) -> None:
+        super().__init__()
+        self.mlp = nn.Sequential(nn.Linear(in_size, hidden), nn.ReLU(), nn.Linear(hidden, 2))
+
+    def forward(self, state: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        out = self.mlp(state)  # (B, H) -> (B, 2)
+        return F.softplus(out[:, 0]), out[:, 1]
+
+
 class WaypointHead(nn.Module):
     """Query hidden states -> per-step (dx, dy) -> cumulative sum: waypoints in the ego frame [m]."""
 
@@ -192,14 +224,18 @@ class WaypointHead(nn.Module):
 # ---- 3. the model -----------------------------------------------------------------------------------
 @dataclass
 class VLAOutput(ModelOutput):
-    """``loss = lm_loss + waypoint_loss`` (present when the batch has targets)."""
+    """``loss = lm_loss + waypoint_loss + speed_loss`` (present when the batch has targets)."""
 
     loss: torch.Tensor | None = None
     lm_loss: torch.Tensor | None = None  # mean cross-entropy over answer tokens
-    waypoint_loss: torch.Tensor | None = None  # smooth-L1 path + smooth-L1 speed waypoints
+    # smooth-L1 path + smooth-L1 speed waypoints, each summed over x, y and averaged over points (SimLingo)
+    waypoint_loss: torch.Tensor | None = None
+    speed_loss: torch.Tensor | None = None  # smooth-L1 target speed + stop cross-entropy (0 without)
     logits: torch.Tensor | None = None  # (B, A, V): the prediction of each answer token
     path: torch.Tensor | None = None  # (B, n_path, 2) [m]
     speed_waypoints: torch.Tensor | None = None  # (B, n_speed, 2) [m]
+    target_speed: torch.Tensor | None = None  # (B,) [m/s] (speed_query)
+    stop_logit: torch.Tensor | None = None  # (B,) (speed_query)
 
 
 @dataclass
@@ -211,6 +247,8 @@ class VLAPrediction:
     text: list[str]  # generated commentary (+ communication sentence)
     partner: list[int]  # CAV named in the communication sentence, -1 for none (always -1 for the baseline)
     answer_ids: list[list[int]]  # the generated answer tokens, </s> included ([] when none was asked)
+    target_speed: torch.Tensor | None = None  # (B,) [m/s] where to be in 0.5 s (speed_query), else None
+    stop_prob: torch.Tensor | None = None  # (B,) probability that the expert would brake (speed_query)
 
 
 def answer_loss(logits: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:
@@ -219,6 +257,20 @@ def answer_loss(logits: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:
     if not (labels != IGNORE_INDEX).any():
         return logits.sum() * 0.0
     return F.cross_entropy(logits.flatten(0, 1), labels.flatten(), ignore_index=IGNORE_INDEX)
+
+
+def waypoint_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Smooth-L1 summed over (x, y) and averaged over points and rows, as SimLingo weighs it."""
+    return F.smooth_l1_loss(pred, target, reduction="none").sum(-1).mean()
+
+
+def speed_loss(
+    target_speed: torch.Tensor, stop_logit: torch.Tensor, batch_target: torch.Tensor, batch_stop: torch.Tensor
+) -> torch.Tensor:
+    """Smooth-L1 of the target speed [m/s] + binary cross-entropy of the stop decision."""
+    return F.smooth_l1_loss(target_speed, batch_target) + F.binary_cross_entropy_with_logits(
+        stop_logit, batch_stop
+    )
 
 
 def positions(mask: torch.Tensor) -> torch.Tensor:
@@ -292,10 +344,17 @@ class V2VVLA(nn.Module):
         self.target_point_encoder = TargetPointEncoder(
             config.target_point_hidden, hidden, config.target_point_scale
         )
-        n_queries = config.n_path + config.n_speed
-        self.waypoint_queries = nn.Parameter(torch.randn(n_queries, hidden) * 0.02)  # (Q, H)
+        self.cav_encoder = (
+            CavPoseEncoder(config.target_point_hidden, hidden, config.target_point_scale)
+            if config.cav_tokens
+            else None
+        )
+        self.waypoint_queries = nn.Parameter(torch.randn(config.n_queries, hidden) * 0.02)  # (Q, H)
         self.path_head = WaypointHead(hidden, config.waypoint_head_hidden)
         self.speed_head = WaypointHead(hidden, config.waypoint_head_hidden)
+        self.target_speed_head = (
+            SpeedHead(hidden, config.waypoint_head_hidden) if config.speed_query else None
+        )
         self._set_trainable()
         self.train()  # from_pretrained leaves the backbone in eval mode; a new module trains
 
@@ -336,15 +395,26 @@ class V2VVLA(nn.Module):
         embeds = embeds.masked_scatter(image_mask, image.to(embeds.dtype))
         points = self.target_point_encoder(batch.target_points.to(embeds.dtype))  # (B, 2, H)
         point_mask = (ids == self.processor.target_point_token_id).unsqueeze(-1)  # (B, L, 1), 2 per row
-        return embeds.masked_scatter(point_mask, points)
+        embeds = embeds.masked_scatter(point_mask, points)
+        if self.cav_encoder is not None and batch.cav_poses is not None and len(batch.cav_poses):
+            cavs = self.cav_encoder(batch.cav_poses.to(embeds.dtype))  # (M, H), in row and prompt order
+            cav_mask = (ids == self.processor.cav_point_token_id).unsqueeze(-1)  # (B, L, 1), M in all
+            embeds = embeds.masked_scatter(cav_mask, cavs)
+        return embeds
 
     def queries(self, batch_size: int) -> torch.Tensor:
         return self.waypoint_queries.unsqueeze(0).expand(batch_size, -1, -1)  # (B, Q, H)
 
     def waypoints(self, query_states: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(B, Q, H) -> path (B, n_path, 2), speed waypoints (B, n_speed, 2)."""
-        n = self.config.n_path
-        return self.path_head(query_states[:, :n]), self.speed_head(query_states[:, n:])
+        n, m = self.config.n_path, self.config.n_path + self.config.n_speed
+        return self.path_head(query_states[:, :n]), self.speed_head(query_states[:, n:m])
+
+    def speeds(self, query_states: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """(B, Q, H) -> target speed (B,) [m/s] and stop logit (B,) from the last query (``speed_query``)."""
+        if self.target_speed_head is None:
+            return None
+        return cast(tuple[torch.Tensor, torch.Tensor], self.target_speed_head(query_states[:, -1]))
 
     # ---- training forward ---------------------------------------------------------------------------
     def forward(self, batch: VLABatch) -> VLAOutput:
@@ -367,15 +437,21 @@ class V2VVLA(nn.Module):
         states = lm(inputs_embeds=embeds, attention_mask=mask, position_ids=positions(mask)).last_hidden_state
         path, speed = self.waypoints(states[:, length : length + q])  # (B, n_path, 2), (B, n_speed, 2)
         out = VLAOutput(path=path, speed_waypoints=speed)
+        speeds = self.speeds(states[:, length : length + q])
+        if speeds is not None:
+            out.target_speed, out.stop_logit = speeds
         if batch.answer_ids is not None:
             out.logits = self.backbone.lm_head(states[:, length + q - 1 : -1])  # (B, A, V)
         if batch.labels is not None and batch.path is not None and batch.speed_waypoints is not None:
             assert out.logits is not None
             out.lm_loss = answer_loss(out.logits, batch.labels)
-            out.waypoint_loss = F.smooth_l1_loss(path, batch.path) + F.smooth_l1_loss(
-                speed, batch.speed_waypoints
-            )
-            out.loss = out.lm_loss + out.waypoint_loss
+            out.waypoint_loss = waypoint_loss(path, batch.path) + waypoint_loss(speed, batch.speed_waypoints)
+            out.speed_loss = out.waypoint_loss.new_zeros(())
+            if out.target_speed is not None and out.stop_logit is not None:
+                if batch.target_speed is None or batch.stop is None:
+                    raise ValueError("a model with speed_query trains on rows with target_speed")
+                out.speed_loss = speed_loss(out.target_speed, out.stop_logit, batch.target_speed, batch.stop)
+            out.loss = out.lm_loss + out.waypoint_loss + out.speed_loss
         return out
 
     # ---- closed-loop inference ----------------------------------------------------------------------
@@ -408,16 +484,25 @@ class V2VVLA(nn.Module):
         lm = self.backbone.model.language_model
         answer_ids: list[list[int]] = [[] for _ in range(b)]
         if max_new_tokens == 0:  # waypoints only: the last layer at the query positions alone
-            path, speed = self.waypoints(query_states(lm, embeds, mask, q))
+            states = query_states(lm, embeds, mask, q)
         else:
             out = lm(inputs_embeds=embeds, attention_mask=mask, position_ids=positions(mask), use_cache=True)
-            path, speed = self.waypoints(out.last_hidden_state[:, -q:])
+            states = out.last_hidden_state[:, -q:]
+        path, speed = self.waypoints(states)
+        speeds = self.speeds(states)
+        if max_new_tokens:
             answer, keep = self._greedy(out, mask, max_new_tokens)
             answer_ids = [row[k].tolist() for row, k in zip(answer.cpu(), keep.cpu(), strict=True)]
         text = [str(self.tokenizer.decode(a, skip_special_tokens=True)).strip() for a in answer_ids]
         partner = [parse_partner(t) if self.config.cooperative else -1 for t in text]
         return VLAPrediction(
-            path=path, speed_waypoints=speed, text=text, partner=partner, answer_ids=answer_ids
+            path=path,
+            speed_waypoints=speed,
+            text=text,
+            partner=partner,
+            answer_ids=answer_ids,
+            target_speed=None if speeds is None else speeds[0],
+            stop_prob=None if speeds is None else torch.sigmoid(speeds[1]),
         )
 
     def _greedy(self, out: Any, mask: torch.Tensor, max_new_tokens: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -481,7 +566,7 @@ class V2VVLA(nn.Module):
             )
         backbone = InternVLForConditionalGeneration(backbone_cfg)
         backbone.set_attn_implementation(config.attn_implementation)
-        model = cls(config, backbone, load_tokenizer(src / TOKENIZER_DIR))
+        model = cls(config, backbone, load_tokenizer(src / TOKENIZER_DIR, add=()))
         load_model(model, str(src / WEIGHTS_FILE), strict=True, device=str(device))
         return model.to(device)
 
@@ -493,7 +578,17 @@ class V2VVLA(nn.Module):
 
         lm = self.backbone.model.language_model
         lora = sum(p.numel() for n, p in lm.named_parameters() if "lora_" in n)
-        heads = count(self.target_point_encoder) + count(self.path_head) + count(self.speed_head)
+        heads = sum(
+            count(m)
+            for m in (
+                self.target_point_encoder,
+                self.cav_encoder,
+                self.path_head,
+                self.speed_head,
+                self.target_speed_head,
+            )
+            if m is not None
+        )
         head = self.backbone.lm_head.weight
         untied = head is not self.backbone.get_input_embeddings().weight
         return {

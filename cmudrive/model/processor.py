@@ -4,7 +4,9 @@ A row has the dataset's columns: ``camera`` (PIL RGB or (H, W, 3) uint8, 256 x 1
 (PIL RGB or array, the merged occupancy render, ego driving up), ``speed`` [m/s], ``target_points``
 (2, 2) [m] (ego frame, x forward, y left), ``other_cavs`` (list of [cav, x, y, yaw]) and, for training,
 ``path`` (20, 2) [m], ``speed_waypoints`` (10, 2) [m], ``commentary`` (str), ``communication`` (str, ""
-for none), ``partner_label`` (int, -1 for none). Other keys are ignored.
+for none), ``partner_label`` (int, -1 for none) and, for a model with ``speed_query``, ``target_speed``
+[m/s] (the expert's) and optionally ``stop`` (bool; default: SimLingo's brake rule at the row's speed for
+that target, :func:`cmudrive.agents.control.brakes`). Other keys are ignored.
 
 Token layout of one row (left-padded, so that every row ends at the same position and the model can
 append its waypoint queries after it)::
@@ -13,7 +15,9 @@ append its waypoint queries after it)::
     [Current speed: 4.2 m/s.] Target waypoint: <TARGET_POINT><TARGET_POINT>. [Other CAVs: ...] {task}
 
 (the speed is left out by a configuration with ``speed_in_prompt=False``, and from a training row whose
-``speed`` is ``None``: speed dropout) and, for training, the answer apart (right-padded): the commentary,
+``speed`` is ``None``: speed dropout; with ``cav_tokens`` the other CAVs read "Other CAVs: 3<CAV_POINT>
+10<CAV_POINT>.", each ``<CAV_POINT>`` replaced by an embedding of that CAV's pose) and, for training,
+the answer apart (right-padded): the commentary,
 and for the cooperative model " Communication: " followed by the communication sentence or "none.", then
 ``</s>``. The model puts its waypoint queries between the two (:class:`cmudrive.model.V2VVLA`): prompt,
 queries, answer.
@@ -32,8 +36,16 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from PIL import Image
 
+from cmudrive.agents.control import brakes
 from cmudrive.model.config import ModelConfig
-from cmudrive.model.tokenizer import IMG_CONTEXT, IMG_END, IMG_START, TARGET_POINT, load_tokenizer
+from cmudrive.model.tokenizer import (
+    CAV_POINT,
+    IMG_CONTEXT,
+    IMG_END,
+    IMG_START,
+    TARGET_POINT,
+    load_tokenizer,
+)
 
 if TYPE_CHECKING:
     import torch
@@ -55,11 +67,14 @@ class VLABatch:
     input_ids: torch.Tensor  # (B, L) int64, the prompt, left-padded
     attention_mask: torch.Tensor  # (B, L) int64, 0 on padding
     target_points: torch.Tensor  # (B, 2, 2) float32 [m], ego frame
+    cav_poses: torch.Tensor | None = None  # (M, 3) float32 x, y [m], yaw [rad] of the listed CAVs, row order
     answer_ids: torch.Tensor | None = None  # (B, A) int64, the answer and </s>, right-padded
     labels: torch.Tensor | None = None  # (B, A) int64, answer_ids with IGNORE_INDEX on the padding
     path: torch.Tensor | None = None  # (B, n_path, 2) float32 [m]
     speed_waypoints: torch.Tensor | None = None  # (B, n_speed, 2) float32 [m]
     partner_label: torch.Tensor | None = None  # (B,) int64, -1 for none
+    target_speed: torch.Tensor | None = None  # (B,) float32 [m/s], the expert's (speed_query)
+    stop: torch.Tensor | None = None  # (B,) float32, 1 where the expert's target speed brakes (speed_query)
 
     def to(self, device: torch.device | str, non_blocking: bool = False) -> VLABatch:
         return self._map(lambda t: t.to(device, non_blocking=non_blocking))
@@ -124,6 +139,9 @@ class VLAProcessor:
         vocab = tokenizer.get_vocab()
         self.image_token_id = vocab[IMG_CONTEXT]
         self.target_point_token_id = vocab[TARGET_POINT]
+        self.cav_point_token_id = vocab.get(CAV_POINT, -1)
+        if config.cav_tokens and self.cav_point_token_id < 0:
+            raise ValueError(f"cav_tokens needs the {CAV_POINT} token, which the tokenizer lacks")
         if tokenizer.eos_token_id is None or tokenizer.pad_token_id is None:
             raise ValueError("the tokenizer needs an eos and a pad token")
         self.eos_token_id = int(tokenizer.eos_token_id)
@@ -153,12 +171,19 @@ class VLAProcessor:
         img = _rgb(image)
         keep = max(1, round(img.height * (1.0 - self.config.bonnet_crop)))
         n, s = self.config.camera_tiles, self.image_size
-        # crop first: resize(box=...) would let the filter read bonnet rows below the box
-        wide = np.asarray(img.crop((0, 0, img.width, keep)).resize((n * s, s), Image.Resampling.BILINEAR))
-        return wide.reshape(s, n, s, 3).transpose(1, 0, 2, 3)  # (n, S, S, 3), left to right
+        if keep < img.height:  # crop first: resize(box=...) would let the filter read bonnet rows
+            img = img.crop((0, 0, img.width, keep))
+        if img.size != (n * s, s):  # tiny's 128 px tiles take the stored 256 x 128 camera as it is
+            img = img.resize((n * s, s), Image.Resampling.BILINEAR)
+        return np.asarray(img).reshape(s, n, s, 3).transpose(1, 0, 2, 3)  # (n, S, S, 3), left to right
 
     def _bev_uint8(self, image: Any) -> np.ndarray:
         img = _rgb(image)
+        if self.config.bev_fit == "stretch":  # the whole render, no padding
+            s = self.image_size
+            if img.size != (s, s):
+                img = img.resize((s, s), Image.Resampling.BILINEAR)
+            return np.asarray(img)[None]
         s, side = self.image_size, max(img.width, img.height)
         w, h = max(1, round(img.width * s / side)), max(1, round(img.height * s / side))
         square = np.zeros((s, s, 3), np.uint8)
@@ -171,8 +196,8 @@ class VLAProcessor:
         return _normalise(self._camera_uint8(image))
 
     def bev_tile(self, image: Any) -> np.ndarray:
-        """(1, 3, S, S): the merged BEV resized (same metres per pixel along both axes) and centred on a
-        black square."""
+        """(1, 3, S, S): the merged BEV resized to S x S (``bev_fit="stretch"``) or, keeping its metres per
+        pixel equal along both axes, centred on a black square (``"pad"``)."""
         return _normalise(self._bev_uint8(image))
 
     def pixel_values(self, row: dict[str, Any]) -> np.ndarray:
@@ -186,13 +211,22 @@ class VLAProcessor:
         return np.concatenate(tiles)
 
     # ---- text ---------------------------------------------------------------------------------------
-    def others_text(self, other_cavs: Sequence[Sequence[float]]) -> str:
-        """The nearest other CAVs within range, nearest first, whole metres (ego frame, x forward, y left):
-        "Other CAVs: CAV 3 at (12, -3), ..." (digits are one token each, so every decimal costs tokens)."""
+    def listed_cavs(self, other_cavs: Sequence[Sequence[float]]) -> list[Sequence[float]]:
+        """The other CAVs the prompt lists: ``[cav, x, y, yaw]`` within range, nearest first, at most
+        ``max_other_cavs``."""
         near = [c for c in other_cavs if math.hypot(c[1], c[2]) <= self.config.other_cavs_range_m]
         near.sort(key=lambda c: math.hypot(c[1], c[2]))
-        listed = [f"CAV {int(c[0])} at ({c[1]:.0f}, {c[2]:.0f})" for c in near[: self.config.max_other_cavs]]
-        return "Other CAVs: " + (", ".join(listed) if listed else "none") + "."
+        return near[: self.config.max_other_cavs]
+
+    def others_text(self, other_cavs: Sequence[Sequence[float]]) -> str:
+        """The listed CAVs (ego frame, x forward, y left): "Other CAVs: 3<CAV_POINT> 10<CAV_POINT>." with
+        ``cav_tokens`` (the pose goes in as an embedding), else "Other CAVs: CAV 3 at (12, -3), ..." in
+        whole metres (digits are one token each, so every decimal costs tokens)."""
+        listed = self.listed_cavs(other_cavs)
+        if self.config.cav_tokens:
+            return "Other CAVs: " + (" ".join(f"{int(c[0])}{CAV_POINT}" for c in listed) or "none") + "."
+        spelt = [f"CAV {int(c[0])} at ({c[1]:.0f}, {c[2]:.0f})" for c in listed]
+        return "Other CAVs: " + (", ".join(spelt) if spelt else "none") + "."
 
     def prompt(self, row: dict[str, Any]) -> str:
         """The prompt text of one row, image placeholders included."""
@@ -234,9 +268,12 @@ class VLAProcessor:
         """:meth:`encode` of every row; one tokenizer call for all prompts (one for all answers)."""
         prompts = self.tokenizer([self.prompt(r) for r in rows], add_special_tokens=False)["input_ids"]
         expected = self.tokens_per_image * self.config.n_images
-        for ids in prompts:
+        for ids, row in zip(prompts, rows, strict=True):
             if ids.count(self.image_token_id) != expected or ids.count(self.target_point_token_id) != 2:
                 raise ValueError("the prompt's image / target-point placeholders did not tokenize one to one")
+            if self.config.cav_tokens and self.config.cooperative:
+                if ids.count(self.cav_point_token_id) != len(self.listed_cavs(row.get("other_cavs") or [])):
+                    raise ValueError("the prompt's CAV placeholders did not tokenize one to one")
         if not with_answer:
             return [(list(ids), []) for ids in prompts]
         lead = "" if self.config.chat_template else " "
@@ -267,6 +304,9 @@ class VLAProcessor:
             attention_mask=mask,
             target_points=_stack(rows, "target_points", (2, 2)),
         )
+        if self.config.cav_tokens and self.config.cooperative:
+            poses = [c[1:4] for r in rows for c in self.listed_cavs(r.get("other_cavs") or [])]
+            batch.cav_poses = torch.from_numpy(np.asarray(poses, np.float32).reshape(-1, 3))
         if with_answer:
             width = max(len(a) for _, a in encoded)
             answer_ids = torch.full((len(rows), width), self.pad_token_id, dtype=torch.long)
@@ -277,7 +317,23 @@ class VLAProcessor:
             batch.path = _stack(rows, "path", (self.config.n_path, 2))
             batch.speed_waypoints = _stack(rows, "speed_waypoints", (self.config.n_speed, 2))
             batch.partner_label = torch.tensor([int(r.get("partner_label", -1)) for r in rows])
+            if self.config.speed_query:
+                batch.target_speed, batch.stop = speed_labels(rows)
         return batch
+
+
+def speed_labels(rows: Sequence[dict[str, Any]]) -> tuple[torch.Tensor, torch.Tensor]:
+    """(B,) target speeds [m/s] and (B,) stop labels (1.0 / 0.0) of training rows: SimLingo's brake rule
+    at the row's speed for the expert's target speed, or the row's own ``stop`` where it has one (a row
+    whose prompt dropped its speed keeps the label of its true speed)."""
+    import torch
+
+    target = np.array([float(r["target_speed"]) for r in rows], np.float32)
+    speed = np.array([float(r["speed"]) if r["speed"] is not None else 0.0 for r in rows], np.float32)
+    stop = brakes(speed, target)
+    given = [i for i, r in enumerate(rows) if r.get("stop") is not None]
+    stop[given] = [bool(rows[i]["stop"]) for i in given]
+    return torch.from_numpy(target), torch.from_numpy(stop.astype(np.float32))
 
 
 def _first(value: int | Sequence[int]) -> int:

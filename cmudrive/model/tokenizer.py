@@ -25,10 +25,13 @@ IMG_START = "<img>"
 IMG_END = "</img>"
 IMG_CONTEXT = "<IMG_CONTEXT>"  # one per visual token; replaced by the projected vision features
 TARGET_POINT = "<TARGET_POINT>"  # two per prompt; replaced by the target-point MLP's embeddings
+CAV_POINT = "<CAV_POINT>"  # one per listed CAV (``cav_tokens``); replaced by the CAV-pose MLP's embedding
 PAD = "<pad>"
 EOS = "</s>"
-SPECIAL_TOKENS = (PAD, EOS, IMG_START, IMG_END, IMG_CONTEXT, TARGET_POINT)
-MODEL_TOKENS = (IMG_START, IMG_END, IMG_CONTEXT, TARGET_POINT)  # added to a pretrained tokenizer if absent
+SPECIAL_TOKENS = (PAD, EOS, IMG_START, IMG_END, IMG_CONTEXT, TARGET_POINT, CAV_POINT)
+# added to a pretrained base's tokenizer where absent (a saved checkpoint's tokenizer is loaded as saved: its
+# embeddings were sized for it)
+MODEL_TOKENS = (IMG_START, IMG_END, IMG_CONTEXT, TARGET_POINT, CAV_POINT)
 TINY_VOCAB_SIZE = 1024
 
 _OBJECTS = (
@@ -54,6 +57,7 @@ def corpus() -> list[str]:
         "Current speed: 0.0 m/s. Target waypoint: <TARGET_POINT><TARGET_POINT>.",
         "Other CAVs: none.",
         "Other CAVs: CAV 3 at (12.5, -3.0), CAV 10 at (-41.2, 7.9).",
+        "Other CAVs: 3<CAV_POINT> 10<CAV_POINT> 15<CAV_POINT>.",
         "Communication: none.",
         "Communication: CAV 4 can see the critical object.",
         "What should the ego do next?",
@@ -91,18 +95,21 @@ def build_tiny_tokenizer() -> PreTrainedTokenizerBase:
         tokenizer_object=tok,
         pad_token=PAD,
         eos_token=EOS,
-        additional_special_tokens=[IMG_START, IMG_END, IMG_CONTEXT, TARGET_POINT],
+        additional_special_tokens=[IMG_START, IMG_END, IMG_CONTEXT, TARGET_POINT, CAV_POINT],
         padding_side="left",
     )
 
 
-def load_tokenizer(path: str | Path | None = None) -> PreTrainedTokenizerBase:
-    """The tokenizer in ``path`` (a pretrained checkpoint's) or the shipped tiny one, with the model's
-    special tokens added where missing, a pad token, and left padding (waypoint queries end every row)."""
+def load_tokenizer(
+    path: str | Path | None = None, add: tuple[str, ...] = MODEL_TOKENS
+) -> PreTrainedTokenizerBase:
+    """The tokenizer in ``path`` (a pretrained checkpoint's) or the shipped tiny one, with the tokens ``add``
+    added where missing (``()`` for a saved V2V-VLA checkpoint's own tokenizer, whose embeddings were sized
+    for it), a pad token, and left padding (waypoint queries end every row)."""
     from transformers import AutoTokenizer
 
     tok = AutoTokenizer.from_pretrained(str(path or TINY_TOKENIZER_DIR))
-    missing = [t for t in MODEL_TOKENS if t not in tok.get_vocab()]
+    missing = [t for t in add if t not in tok.get_vocab()]
     if missing:
         tok.add_tokens(missing, special_tokens=True)
     if tok.pad_token is None:
