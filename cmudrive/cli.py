@@ -1095,6 +1095,56 @@ def report(
         console.print(f"wrote {p}")
 
 
+@app.command("export")
+def export_run(
+    run: Annotated[Path, typer.Argument(help="output folder of cmudrive eval (holds results.json)")],
+    format: Annotated[
+        str, typer.Option("--format", help="leaderboard: CARLA Leaderboard 2.0 / Bench2Drive files")
+    ] = "leaderboard",
+    per: Annotated[
+        str, typer.Option(help="cav: one leaderboard route per CAV; route: one per route (multi-agent score)")
+    ] = "cav",
+    output: Annotated[
+        Path | None, typer.Option("-o", "--output", help="new or empty folder; default RUN/leaderboard-PER")
+    ] = None,
+    routes: Annotated[
+        Path | None, typer.Option(help="the run's route file; default the one RUN/run.json names")
+    ] = None,
+    metric_info: Annotated[
+        bool | None,
+        typer.Option(
+            "--metric-info/--no-metric-info",
+            help="metric_info.json from the route logs (eval --record): --metric-info requires a log per "
+            "route; default: where a log exists",
+        ),
+    ] = None,
+) -> None:
+    """Export a run's results in another benchmark's format: the leaderboard checkpoint JSON, a route XML
+    with matching ids and metric_info.json per route (docs/formats.md, "Leaderboard export")."""
+    from cmudrive.bench.export import FORMATS, export_leaderboard
+
+    if format not in FORMATS:
+        _fail(ValueError(f"--format must be one of {', '.join(FORMATS)}, got {format!r}"))
+    try:
+        done = export_leaderboard(run, output, per=per, routes_file=routes, metric_info_required=metric_info)
+    except (OSError, ValueError) as exc:
+        _fail(exc)
+    console.print(f"wrote {done.checkpoint} ({done.records} records, per {per})")
+    console.print(f"wrote {done.routes}")
+    if done.metric_info:
+        console.print(
+            f"wrote {len(done.metric_info)} metric_info.json in {done.checkpoint.parent}/<save_name>/"
+        )
+    if done.without_log:
+        shown = ", ".join(done.without_log[:5]) + (" ..." if len(done.without_log) > 5 else "")
+        err_console.print(
+            f"warning: no route log for {len(done.without_log)} routes ({shown}): no metric_info.json for "
+            "them (Bench2Drive's efficiency_smoothness_benchmark.py needs one per record; eval --record)"
+        )
+    if done.invalid:
+        err_console.print(f"note: {len(done.invalid)} routes recorded 'Failed - Invalid route' left out")
+
+
 @app.command("replay")
 def replay_log(
     log: Annotated[Path, typer.Argument(help="route log (.npz) written by eval --record")],
