@@ -178,8 +178,10 @@ def their_abilities(
             past = rec["scores"]["score_route"] / 100.0 > junction[str(route.get("id"))]
             if past and not rec["infractions"]["stop_infraction"] and not rec["infractions"]["red_light"]:
                 stats["Traffic_Signs"][0] += 1
-    rates = {name: 100.0 * s / n for name, (s, n) in stats.items()}
-    rates["mean"] = sum(rates.values()) / len(THEIR_GROUPS)
+    # their script divides by zero for a group without routes: those are left out here, and the mean
+    # (theirs: over the 5 groups) is over the groups present
+    rates = {name: 100.0 * s / n for name, (s, n) in stats.items() if n}
+    rates["mean"] = sum(rates.values()) / len(rates)
     return rates
 
 
@@ -379,6 +381,22 @@ def test_per_route_pools_checkpoints_where_we_average_cavs(tmp_path: Path) -> No
     assert their_efficiency(records) == pytest.approx((4 * 40.0 + 16 * 100.0) / 20)  # 88
 
 
+def test_per_route_traffic_signs_reads_the_route_completion_where_we_read_cav_0s(tmp_path: Path) -> None:
+    """Documented difference: a failed Traffic_Signs route passes their check when RC^j is past CAV 0's
+    first junction, ours when CAV 0's own RC is (here 20 % < 50 % < RC^j = 60 %)."""
+    cavs = [
+        cav(0, 20.0, STATUS_TICK_CAP, [90.0], first_junction_completion=50.0),
+        cav(1, 100.0, STATUS_PERFECT, [100.0]),
+    ]
+    routes = [route_result("T_Junction_1", "downtown", "ClearNoon", "T_Junction", cavs)]
+    export_leaderboard(write_run(tmp_path / "run", routes), tmp_path / "lb", per="route")
+    _, records = read(tmp_path / "lb")
+    assert records[0]["scores"]["score_route"] == pytest.approx(60.0)
+    xml = tmp_path / "lb" / "routes.xml"
+    assert their_abilities(records, xml, junction_shares(records, routes))["Traffic_Signs"] == 100.0
+    assert multi_ability(routes)["Traffic_Signs"] == 0.0
+
+
 # ------------------------------------------------------------------------------------------------------
 # fields, frames, ids
 
@@ -476,6 +494,10 @@ def test_bad_input_is_an_error_naming_the_file(
     run, _ = hand_run
     with pytest.raises(ExportError, match="not a folder"):
         export_leaderboard(tmp_path / "nowhere")
+    result = CliRunner().invoke(app, ["export", str(tmp_path / "nowhere")])
+    assert result.exit_code == 1 and "nowhere: not a folder" in result.output
+    result = CliRunner().invoke(app, ["export", str(run), "--format", "carla-1.0", "-o", str(tmp_path / "x")])
+    assert result.exit_code == 1 and "--format must be one of leaderboard" in result.output
     (tmp_path / "empty").mkdir()
     with pytest.raises(ExportError, match=r"empty/results\.json: no such file"):
         export_leaderboard(tmp_path / "empty")

@@ -9,7 +9,8 @@ checked (:func:`record_problems`) before anything is computed from it: every fie
 finite and in range (RC in [0, 100] %, IS in [0, 1], DS in [0, 100]), statuses known, CAV counts 1 to
 ``MAX_RECORD_CAVS``, and the scores consistent with each other as ``metrics.route_result`` makes them
 (DS = RC x IS, success exactly when DS = 100, a success only with status Perfect or Completed, a
-Perfect route a success, RC the mean and IS the product of the CAVs' values). A record that breaks one
+Perfect route a success, RC the mean and IS the product of the CAVs' values), and each infraction's
+CARLA-frame place the mirror image of its map-frame place (``Infraction``). A record that breaks one
 raises ``ValueError`` naming the route and the field: a hand-edited or crafted results file is refused,
 never averaged into a summary.
 """
