@@ -109,6 +109,11 @@ def route_specs(routes: Sequence[RouteResult], routes_file: Path, named_by: str)
         spec = by_id.get(r.route_id)
         if spec is None:
             raise ExportError(f"route file {routes_file} has no route {r.route_id!r} of the results")
+        if len(spec.cavs) != r.num_cavs:
+            raise ExportError(
+                f"route {r.route_id!r} of {routes_file} has {len(spec.cavs)} CAVs, its record {r.num_cavs}: "
+                "pass the route file of the run with --routes"
+            )
         want = (r.provenance or {}).get("route_sha256")
         if isinstance(want, str) and route_sha256(spec) != want:
             raise ExportError(

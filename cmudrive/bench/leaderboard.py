@@ -197,7 +197,7 @@ def cav_records(
                 "route_length": c.route_length if c else 0.0,
                 "duration_game": (c.ticks if c else 0) * DT,
                 "duration_system": route.wall_time / route.num_cavs,
-                "cmudrive": {"route_id": route.route_id, "cav": i, "cav_id": c.cav_id if c else str(i)},
+                "cmudrive": {"route_id": route.route_id, "cav": i, "cav_id": c.cav_id if c else f"cav{i}"},
             }
             if c is None:
                 empty: dict[str, list[str]] = {k: [] for k in INFRACTION_KEYS}

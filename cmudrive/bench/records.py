@@ -309,7 +309,7 @@ def _same_place(e: Infraction) -> bool:
     """The CARLA-frame pair is the map-frame pair mirrored in y (NaN where the map pair is NaN)."""
     assert e.carla_x is not None and e.carla_y is not None
     return all(
-        (math.isnan(a) and math.isnan(b)) or abs(a - b) <= COORD_TOLERANCE * max(1.0, abs(a))
+        a == b or (math.isnan(a) and math.isnan(b)) or abs(a - b) <= COORD_TOLERANCE * max(1.0, abs(a))
         for a, b in ((e.carla_x, e.x), (e.carla_y, -e.y))
     )
 
