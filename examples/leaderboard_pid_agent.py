@@ -30,7 +30,8 @@ from cmudrive.leaderboard.autonomous_agent import AutonomousAgent, Track
 EARTH_RADIUS = 6378137.0  # [m] the Mercator radius of CARLA's GNSS
 STEER_GAIN, STEER_DAMPING = 1.2, 0.2  # [1/rad], [s/rad]
 SPEED_GAIN, SPEED_INTEGRAL = 0.5, 0.05  # [1/(m/s)], [1/m]
-STOP_DISTANCE = 3.0  # [m] to the plan's last point: stand still
+STOP_DECEL = 2.0  # [m/s^2] comfortable braking toward the plan's last point
+TURN_SPEED = 4.0  # [m/s] through turns at junctions
 
 
 def get_entry_point():
@@ -102,13 +103,13 @@ class PidLeaderboardAgent(AutonomousAgent):
         self.last_angle = angle
         remaining = np.linalg.norm(self.plan[-1] - position)
         turning = any(self.turns[self.progress : self.progress + 15])
-        wanted = min(self.target_speed, 4.0 if turning else self.target_speed, 0.5 * remaining)
-        if remaining < STOP_DISTANCE:
-            wanted = 0.0
+        wanted = min(self.target_speed, math.sqrt(2.0 * STOP_DECEL * remaining))
+        if turning:
+            wanted = min(wanted, TURN_SPEED)
         error = wanted - speed
         self.speed_error_sum = float(np.clip(self.speed_error_sum + error * dt, -10.0, 10.0))
-        if wanted < 0.1 or speed > 1.2 * wanted + 0.5:
-            control.throttle, control.brake = 0.0, 0.5 if wanted > 0.1 else 1.0
+        if wanted < 0.3 or speed > 1.2 * wanted + 0.5:
+            control.throttle, control.brake = 0.0, 0.5 if wanted >= 0.3 else 1.0
         else:
             push = SPEED_GAIN * error + SPEED_INTEGRAL * self.speed_error_sum
             control.throttle = float(np.clip(push, 0.0, 0.8))
