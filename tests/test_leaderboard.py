@@ -5,7 +5,10 @@ before a run, and the example leaderboard agent driving a route on every CAV."""
 from __future__ import annotations
 
 import importlib.util
+import json
 import math
+import re
+import shlex
 from pathlib import Path
 
 import numpy as np
@@ -248,3 +251,32 @@ def test_the_example_leaderboard_agent_drives_every_cav_forward() -> None:
     # 10 s at up to 6 m/s on routes of ~150-300 m: every CAV covers a good part of its route
     for cav in result.cavs:
         assert cav.route_completion > 5.0, (cav.cav_id, cav.route_completion)
+
+
+def test_the_readme_leaderboard_section_works_as_written(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The README's "Bring a leaderboard agent": its replacement imports are the example's, and its
+    command runs from the repository root (a tiny tick cap and one route here, output in a temporary
+    folder)."""
+    text = (REPO / "README.md").read_text()
+    section = text.split("### Bring a leaderboard agent", 1)[1].split("\n## ", 1)[0]
+    block = re.findall(r"```python\n(.*?)```", section, flags=re.S)[0]
+    imports = [line.split("#")[0].strip() for line in block.splitlines() if "cmudrive.leaderboard" in line]
+    assert len(imports) == 3
+    example = EXAMPLE.read_text()
+    for line in imports:  # each name the README imports is imported so by the example or the fixture
+        module, names = line.removeprefix("from ").split(" import ")
+        assert all(
+            re.search(rf"from {re.escape(module)} import .*\b{n.strip()}\b", example + RECORDING.read_text())
+            for n in names.split(",")
+        ), line
+    command = re.findall(r"\n    (cmudrive eval .*?)\n\n", section.replace("\\\n", " "), flags=re.S)[0]
+    args = shlex.split(command)[2:]
+    args[args.index("--out") + 1] = str(tmp_path / "out")
+    args += ["--tick-cap", "20", "--routes-subset", "0"]
+    monkeypatch.chdir(REPO)  # the command's paths are the repository's
+    result = CliRunner().invoke(app, ["eval", *args])
+    assert result.exit_code == 0, result.output
+    routes = json.loads((tmp_path / "out" / "results.json").read_text())["routes"]
+    assert len(routes) == 1 and "crashed" not in routes[0]["status"], routes[0]
