@@ -169,6 +169,20 @@ def test_gnss_follows_carla_geo_reference_and_round_trips() -> None:
     assert np.abs(back[:, :2] - xy).max() < 0.01  # [m]
 
 
+OPENDRIVE_DIR = REPO.parent / "shared" / "data" / "opendrive"  # CARLA's town files (test_import.py too)
+
+
+@pytest.mark.skipif(
+    not OPENDRIVE_DIR.is_dir(), reason="CARLA's OpenDRIVE files are not beside the repository"
+)
+def test_carla_towns_geo_reference_is_their_opendrive_header() -> None:
+    for town in [f"Town0{k}" for k in range(1, 8)]:
+        header = (OPENDRIVE_DIR / f"{town}.xodr").read_text()[:5000]
+        lat = float(re.search(r"\+lat_0=([-+0-9.e]+)", header).group(1))  # type: ignore[union-attr]
+        lon = float(re.search(r"\+lon_0=([-+0-9.e]+)", header).group(1))  # type: ignore[union-attr]
+        assert geo_reference(town) == GeoReference(lat, lon), town
+
+
 def test_global_plan_is_in_carla_world_and_gps(downtown: RoadMap) -> None:
     route = RoutePlanner(downtown).plan((141.0, 199.9), (568.2, 220.4))
     gps, world = global_plan(route, downtown, geo_reference("downtown"))
