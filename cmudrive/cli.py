@@ -473,6 +473,18 @@ def _agent_options(pairs: list[str] | None, checkpoint: Path | None) -> dict[str
     return options
 
 
+def _leaderboard_agent(agent: str, config: Any) -> tuple[str, Any]:
+    """``--agent leaderboard:FILE.py`` is the bundled ``leaderboard`` agent with the option
+    ``agent=FILE.py`` (an absolute path: route workers may run elsewhere); other agents pass unchanged."""
+    prefix, sep, file = agent.partition(":")
+    if prefix != "leaderboard" or not sep:
+        return agent, config
+    if not file or "agent" in config.agent_options:
+        _fail(ValueError("--agent leaderboard:FILE.py names the agent file once (no --agent-option agent=)"))
+    options = {**config.agent_options, "agent": str(Path(file).resolve())}
+    return "leaderboard", dataclasses.replace(config, agent_options=options)
+
+
 def _route_executor(executor: str, workers: int | None, ray_address: str | None) -> Any:
     """The executor named on the command line (``local`` with ``workers``, or ``ray``)."""
     from cmudrive.bench.runner import LocalExecutor, RayExecutor
@@ -585,7 +597,8 @@ def evaluate(
         str,
         typer.Option(
             help="agent class as package.module:Class, or a bundled one: expert, autopilot, pid, "
-            "v2v-vla, v2v-vla-baseline"
+            "v2v-vla, v2v-vla-baseline; leaderboard:FILE.py runs a CARLA leaderboard agent file on every "
+            "CAV (--agent-option conf=... is what its setup() gets)"
         ),
     ] = "expert",
     checkpoint: Annotated[
@@ -687,6 +700,7 @@ def evaluate(
         )
     except ValueError as exc:
         _fail(ValueError(f"--step-timeout / --tick-cap: {exc}"))
+    agent, config = _leaderboard_agent(agent, config)
     if agent in ("v2v-vla", "v2v-vla-baseline"):  # a missing checkpoint fails here, not once per route
         from cmudrive.model.agent import resolve_checkpoint
 
