@@ -473,6 +473,18 @@ def _agent_options(pairs: list[str] | None, checkpoint: Path | None) -> dict[str
     return options
 
 
+def _leaderboard_agent(agent: str, config: Any) -> tuple[str, Any]:
+    """``--agent leaderboard:FILE.py`` is the bundled ``leaderboard`` agent with the option
+    ``agent=FILE.py`` (an absolute path: route workers may run elsewhere); other agents pass unchanged."""
+    prefix, sep, file = agent.partition(":")
+    if prefix != "leaderboard" or not sep:
+        return agent, config
+    if not file or "agent" in config.agent_options:
+        _fail(ValueError("--agent leaderboard:FILE.py names the agent file once (no --agent-option agent=)"))
+    options = {**config.agent_options, "agent": str(Path(file).resolve())}
+    return "leaderboard", dataclasses.replace(config, agent_options=options)
+
+
 def _route_executor(executor: str, workers: int | None, ray_address: str | None) -> Any:
     """The executor named on the command line (``local`` with ``workers``, or ``ray``)."""
     from cmudrive.bench.runner import LocalExecutor, RayExecutor
@@ -585,7 +597,8 @@ def evaluate(
         str,
         typer.Option(
             help="agent class as package.module:Class, or a bundled one: expert, autopilot, pid, "
-            "v2v-vla, v2v-vla-baseline"
+            "v2v-vla, v2v-vla-baseline; leaderboard:FILE.py runs a CARLA leaderboard agent file on every "
+            "CAV (--agent-option conf=... is what its setup() gets)"
         ),
     ] = "expert",
     checkpoint: Annotated[
@@ -687,6 +700,7 @@ def evaluate(
         )
     except ValueError as exc:
         _fail(ValueError(f"--step-timeout / --tick-cap: {exc}"))
+    agent, config = _leaderboard_agent(agent, config)
     if agent in ("v2v-vla", "v2v-vla-baseline"):  # a missing checkpoint fails here, not once per route
         from cmudrive.model.agent import resolve_checkpoint
 
@@ -1111,6 +1125,56 @@ def report(
         _fail(exc)
     for p in paths:
         console.print(f"wrote {p}")
+
+
+@app.command("export")
+def export_run(
+    run: Annotated[Path, typer.Argument(help="output folder of cmudrive eval (holds results.json)")],
+    format: Annotated[
+        str, typer.Option("--format", help="leaderboard: CARLA Leaderboard 2.0 / Bench2Drive files")
+    ] = "leaderboard",
+    per: Annotated[
+        str, typer.Option(help="cav: one leaderboard route per CAV; route: one per route (multi-agent score)")
+    ] = "cav",
+    output: Annotated[
+        Path | None, typer.Option("-o", "--output", help="new or empty folder; default RUN/leaderboard-PER")
+    ] = None,
+    routes: Annotated[
+        Path | None, typer.Option(help="the run's route file; default the one RUN/run.json names")
+    ] = None,
+    metric_info: Annotated[
+        bool | None,
+        typer.Option(
+            "--metric-info/--no-metric-info",
+            help="metric_info.json from the route logs (eval --record): --metric-info requires a log per "
+            "route; default: where a log exists",
+        ),
+    ] = None,
+) -> None:
+    """Export a run's results in another benchmark's format: the leaderboard checkpoint JSON, a route XML
+    with matching ids and metric_info.json per route (docs/formats.md, "Leaderboard export")."""
+    from cmudrive.bench.export import FORMATS, export_leaderboard
+
+    if format not in FORMATS:
+        _fail(ValueError(f"--format must be one of {', '.join(FORMATS)}, got {format!r}"))
+    try:
+        done = export_leaderboard(run, output, per=per, routes_file=routes, metric_info_required=metric_info)
+    except (OSError, ValueError) as exc:
+        _fail(exc)
+    console.print(f"wrote {done.checkpoint} ({done.records} records, per {per})")
+    console.print(f"wrote {done.routes}")
+    if done.metric_info:
+        console.print(
+            f"wrote {len(done.metric_info)} metric_info.json in {done.checkpoint.parent}/<save_name>/"
+        )
+    if done.without_log:
+        shown = ", ".join(done.without_log[:5]) + (" ..." if len(done.without_log) > 5 else "")
+        err_console.print(
+            f"warning: no route log for {len(done.without_log)} routes ({shown}): no metric_info.json for "
+            "them (Bench2Drive's efficiency_smoothness_benchmark.py needs one per record; eval --record)"
+        )
+    if done.invalid:
+        err_console.print(f"note: {len(done.invalid)} routes recorded 'Failed - Invalid route' left out")
 
 
 @app.command("replay")

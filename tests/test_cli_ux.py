@@ -158,7 +158,7 @@ def readme_agent_section() -> tuple[dict[str, str], list[str]]:
     """The files (python blocks opening with ``# path``) and the literal ``cmudrive eval`` commands (no
     ``...``) of the README's "Evaluate your own agent" section."""
     text = (REPO / "README.md").read_text()
-    section = text.split("### Evaluate your own agent", 1)[1].split("\n## ", 1)[0]
+    section = text.split("### Evaluate your own agent", 1)[1].split("\n## ", 1)[0].split("\n### ", 1)[0]
     files = {}
     for block in re.findall(r"```python\n(.*?)```", section, flags=re.S):
         first = block.splitlines()[0]

@@ -30,6 +30,7 @@ from cmudrive.bench.records import (
     CavResult,
     Infraction,
     RouteResult,
+    record_problems,
 )
 from cmudrive.bench.scenario_types import SCENARIO_TYPES
 
@@ -326,6 +327,40 @@ def test_first_junction_completion_round_trips_and_defaults():
     del old["cavs"][0]["first_junction_completion"]  # records written before the field existed
     assert RouteResult.from_json(old).cavs[0].first_junction_completion is None
     assert math.isclose(again.driving_score, 100.0)
+
+
+def test_infractions_carry_carla_frame_places_and_older_records_get_them():
+    """Issue 26: route files speak CARLA's frame (y mirrored against our map frame); an infraction at map
+    y = +1.6 is at CARLA y = -1.6, and a record written before the CARLA pair existed reads back with it."""
+    inf = Infraction("red_light", 10, 0.5, 195.0, 1.6, "ran a red light", factor=0.7)
+    assert (inf.carla_x, inf.carla_y) == (195.0, -1.6)
+    r = route([cav(100.0, 0.7, events=("red_light",))])
+    r.cavs[0].infractions["red_light"][0] = inf
+    data = r.to_json()
+    assert data["cavs"][0]["infractions"]["red_light"][0]["carla_y"] == -1.6
+    old = r.to_json()
+    for key in ("carla_x", "carla_y"):
+        del old["cavs"][0]["infractions"]["red_light"][0][key]
+    again = RouteResult.from_json(old).cavs[0].infractions["red_light"][0]
+    assert (again.carla_x, again.carla_y) == (195.0, -1.6)
+    nan = Infraction("route_dev", 1, 0.05, float("nan"), float("nan"), "lost")  # position unknown
+    assert math.isnan(nan.carla_x or 0.0) and math.isnan(nan.carla_y or 0.0)
+    assert record_problems(route([cav(0.0, 1.0, status=STATUS_BLOCKED)])) == []
+
+
+@pytest.mark.parametrize(
+    ("carla", "problem"),
+    [
+        ((195.0, 1.6), r"carla_x, carla_y \(195\.0, 1\.6\) are not the map frame's x, -y \(195\.0, -1\.6\)"),
+        ((195.0, "south"), "carla_y must be a number, got 'south'"),
+    ],
+)
+def test_a_record_whose_frames_disagree_is_refused(carla: tuple[object, object], problem: str) -> None:
+    data = route([cav(100.0, 0.7, events=("red_light",))]).to_json()
+    inf = data["cavs"][0]["infractions"]["red_light"][0]
+    inf.update(x=195.0, y=1.6, carla_x=carla[0], carla_y=carla[1])
+    with pytest.raises(ValueError, match=problem):
+        RouteResult.from_json(data)
 
 
 def test_outside_lanes_per_km_is_the_distance_driven_outside():

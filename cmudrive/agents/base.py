@@ -197,6 +197,8 @@ BUNDLED_AGENTS: dict[str, str] = {
     "pid": "cmudrive.agents.pid:PidAgent",
     "v2v-vla": "cmudrive.model.agent:V2VVLAAgent",  # needs the model extra and a checkpoint
     "v2v-vla-baseline": "cmudrive.model.agent:V2VVLABaselineAgent",
+    # a CARLA leaderboard agent file on every CAV (option agent=FILE; cmudrive eval --agent leaderboard:FILE)
+    "leaderboard": "cmudrive.leaderboard.adapter:LeaderboardAgent",
 }
 
 

@@ -5,12 +5,15 @@ Typical use::
     cmudrive eval --routes smoke --agent cmudrive.agents.pid:PidAgent --out out/eval --workers 2
     cmudrive eval --routes cmudrive44 --routes-subset 0-5 --out out/first6
     cmudrive report out/eval -o out/report
+    cmudrive export out/eval --format leaderboard --per route   # leaderboard / Bench2Drive files
 
 or in Python: ``read_routes`` -> ``run_evaluation(routes, agent, out, LocalExecutor(2))``.
 """
 
 from cmudrive.bench.criteria import CriteriaConfig, RouteCriteria
 from cmudrive.bench.evaluator import EvalConfig, RouteInputError, evaluate_route
+from cmudrive.bench.export import export_leaderboard
+from cmudrive.bench.leaderboard import ExportError, LeaderboardExport
 from cmudrive.bench.metrics import ABILITIES, route_result, route_scores, summarize
 from cmudrive.bench.progress import RunProgress
 from cmudrive.bench.records import INFRACTION_KEYS, PENALTIES, CavResult, Infraction, RouteResult
@@ -43,7 +46,9 @@ __all__ = [
     "CavSpec",
     "CriteriaConfig",
     "EvalConfig",
+    "ExportError",
     "Infraction",
+    "LeaderboardExport",
     "LocalExecutor",
     "RayExecutor",
     "RouteCriteria",
@@ -55,6 +60,7 @@ __all__ = [
     "RunProgress",
     "ScenarioSpec",
     "evaluate_route",
+    "export_leaderboard",
     "read_routes",
     "resolve_routes",
     "route_ids",

@@ -444,13 +444,18 @@ class RouteLog:
 
     def cav_xy(self, cav: int) -> np.ndarray:
         """(T, 2) float64 position [m] of CAV ``cav`` at every log tick, NaN where it was not in the world."""
+        return self.cav_pose(cav)[:, :2]
+
+    def cav_pose(self, cav: int) -> np.ndarray:
+        """(T, 4) float64 x [m], y [m], yaw [rad], speed [m/s] of CAV ``cav`` at every log tick (map
+        frame), NaN where it was not in the world."""
         a = self.arrays
-        out = np.full((self.num_ticks, 2), np.nan)
+        out = np.full((self.num_ticks, 4), np.nan)
         tick_of_row = np.repeat(np.arange(self.num_ticks), np.diff(a["tick_ptr"]))
         target = a["cav_actor"][:, cav]
         hit = (a["actor"] == target[tick_of_row]) & (target[tick_of_row] >= 0)
-        out[tick_of_row[hit], 0] = a["x"][hit]
-        out[tick_of_row[hit], 1] = a["y"][hit]
+        for j, name in enumerate(("x", "y", "yaw", "speed")):
+            out[tick_of_row[hit], j] = a[name][hit]
         return out
 
     def active_events(self, tick: int, seconds: float = EVENT_SECONDS) -> list[dict[str, Any]]:

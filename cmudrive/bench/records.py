@@ -9,7 +9,8 @@ checked (:func:`record_problems`) before anything is computed from it: every fie
 finite and in range (RC in [0, 100] %, IS in [0, 1], DS in [0, 100]), statuses known, CAV counts 1 to
 ``MAX_RECORD_CAVS``, and the scores consistent with each other as ``metrics.route_result`` makes them
 (DS = RC x IS, success exactly when DS = 100, a success only with status Perfect or Completed, a
-Perfect route a success, RC the mean and IS the product of the CAVs' values). A record that breaks one
+Perfect route a success, RC the mean and IS the product of the CAVs' values), and each infraction's
+CARLA-frame place the mirror image of its map-frame place (``Infraction``). A record that breaks one
 raises ``ValueError`` naming the route and the field: a hand-edited or crafted results file is refused,
 never averaged into a summary.
 """
@@ -59,16 +60,30 @@ STATUS_INVALID_ROUTE = "Failed - Invalid route"
 
 @dataclass
 class Infraction:
-    """One infraction event of one CAV."""
+    """One infraction event of one CAV.
+
+    The place is given in both frames: ``x``, ``y`` in the map frame (SUMO's network frame, x east, y
+    north), ``carla_x``, ``carla_y`` in CARLA's world frame, the frame of route files and leaderboard
+    results (the mirror image in y: ``cmudrive.maps.coords``). The CARLA pair is derived from the map pair
+    when not given (records written before it existed read back with it filled in), and a record whose
+    pairs disagree is refused (``record_problems``)."""
 
     key: str  # one of INFRACTION_KEYS
     tick: int  # tick of the event (0 = first tick of the route)
     time: float  # simulated time [s]
     x: float  # map frame [m]
     y: float  # map frame [m]
-    message: str  # human-readable, as in leaderboard results
+    message: str  # human-readable, as in leaderboard results; coordinates in it are map frame
     factor: float = 1.0  # multiplier applied to the CAV's infraction score (1.0: recorded only)
     actor: str | None = None  # the other actor (collisions, emergency vehicle), else None
+    carla_x: float | None = None  # CARLA world frame [m] (= x); None on input: derived from x
+    carla_y: float | None = None  # CARLA world frame [m] (= -y); None on input: derived from y
+
+    def __post_init__(self) -> None:
+        if self.carla_x is None and _is_number(self.x):
+            self.carla_x = float(self.x)
+        if self.carla_y is None and _is_number(self.y):
+            self.carla_y = -float(self.y)
 
 
 @dataclass
@@ -197,6 +212,7 @@ MAX_TEXT_CHARS = 4096  # [-] town (a name or a .net.xml path: PATH_MAX), weather
 MAX_RECORD_CAVS = 16  # [-] CAVs of a route (routes.MAX_CAVS)
 SCORE_TOLERANCE = 1e-6  # [score points] DS = RC x IS and RC = mean of the CAVs' RC_i within this
 SUCCESS_TOLERANCE = 1e-9  # [score points] DS counts as 100 within this (metrics.SUCCESS_TOLERANCE)
+COORD_TOLERANCE = 1e-9  # [-] relative: an infraction's CARLA-frame pair equals its mirrored map pair
 # every STATUS_* string defined above (a status added there is known here without a second list)
 STATUSES = frozenset(v for k, v in dict(globals()).items() if k.startswith("STATUS_") and isinstance(v, str))
 
@@ -220,6 +236,11 @@ def route_id_problem(route_id: object) -> str | None:
 def _short(value: object, chars: int = 40) -> str:
     text = repr(value)
     return text if len(text) <= chars else f"{text[:chars]}..."
+
+
+def _is_number(value: object) -> TypeGuard[float]:
+    """An int or float that is not a bool (NaN and infinities included)."""
+    return isinstance(value, int | float) and not isinstance(value, bool)
 
 
 def _finite(value: object) -> TypeGuard[float]:
@@ -271,11 +292,26 @@ def _cav_problems(c: CavResult, problems: list[str]) -> bool:
                 problems.append(f"{where}: {key} infraction key and message must be strings")
             _integer(e.tick, f"{where}: {key} tick", 0, math.inf, problems)
             _number(e.factor, f"{where}: {key} factor", 0.0, 1.0, problems)
-            for name in ("time", "x", "y"):  # NaN where the CAV's position was unknown: shown, not scored
+            numbers = ("time", "x", "y", "carla_x", "carla_y")
+            for name in numbers:  # NaN where the CAV's position was unknown: shown, not scored
                 value = getattr(e, name)
-                if isinstance(value, bool) or not isinstance(value, int | float):
+                if not _is_number(value):
                     problems.append(f"{where}: {key} {name} must be a number, got {_short(value)}")
+            if all(_is_number(getattr(e, n)) for n in numbers) and not _same_place(e):
+                problems.append(
+                    f"{where}: {key} carla_x, carla_y ({e.carla_x!r}, {e.carla_y!r}) are not the map "
+                    f"frame's x, -y ({e.x!r}, {-e.y!r})"
+                )
     return ok
+
+
+def _same_place(e: Infraction) -> bool:
+    """The CARLA-frame pair is the map-frame pair mirrored in y (NaN where the map pair is NaN)."""
+    assert e.carla_x is not None and e.carla_y is not None
+    return all(
+        a == b or (math.isnan(a) and math.isnan(b)) or abs(a - b) <= COORD_TOLERANCE * max(1.0, abs(a))
+        for a, b in ((e.carla_x, e.x), (e.carla_y, -e.y))
+    )
 
 
 def record_problems(r: RouteResult) -> list[str]:

@@ -36,6 +36,7 @@ actor id and tick); ``wetness`` darkens paved surfaces and gives them a sheen of
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -184,6 +185,14 @@ def _bucket(tris: _mesh.Triangles, cell: float) -> _Grid:
     return _Grid(sorted_tris, ptr, cell_xy, reach, grid, order)
 
 
+def _ray_lengths(config: CameraConfig) -> np.ndarray:
+    """(H, W) float32 length of each pixel's ray per metre of depth along the optical axis."""
+    h, w, f = config.height, config.width, config.focal
+    u = (np.arange(w) + 0.5 - 0.5 * w) / f
+    v = (np.arange(h) + 0.5 - 0.5 * h) / f
+    return np.sqrt(1.0 + u[None, :] ** 2 + v[:, None] ** 2).astype(np.float32)
+
+
 class FrontCamera:
     """Renders the front cameras of several vehicles of a snapshot in one call.
 
@@ -204,10 +213,20 @@ class FrontCamera:
         inverse = np.empty(len(static), np.int64)
         inverse[self._grid.order] = np.arange(len(static))
         self._lamp_tris = inverse[self._lamp_first :].reshape(-1, 10)
-        h, w, f = config.height, config.width, config.focal
-        u = (np.arange(w) + 0.5 - 0.5 * w) / f
-        v = (np.arange(h) + 0.5 - 0.5 * h) / f
-        self._ray_len = np.sqrt(1.0 + u[None, :] ** 2 + v[:, None] ** 2).astype(np.float32)
+        self._ray_len = _ray_lengths(config)
+
+    def with_config(self, config: CameraConfig) -> FrontCamera:
+        """A camera of other size, field of view or mounting that shares this one's map meshes (built once
+        per map, the costly part): e.g. several cameras per vehicle. The grid cell size must be the same."""
+        if config.cell_size != self.config.cell_size:
+            raise ValueError(
+                f"cameras that share meshes need the same cell_size ({config.cell_size} != "
+                f"{self.config.cell_size} m)"
+            )
+        other = copy.copy(self)
+        other.config = config
+        other._ray_len = _ray_lengths(config)
+        return other
 
     @property
     def num_static_triangles(self) -> int:
@@ -221,18 +240,25 @@ class FrontCamera:
         y = snapshot.y[rows] + c.mount_x * np.sin(yaw)
         return np.stack([x, y, np.full(len(rows), c.mount_z), yaw], axis=1).astype(np.float64)
 
-    def render(self, snapshot: Snapshot, cav_rows: np.ndarray, weather: Weather) -> np.ndarray:
+    def render(
+        self, snapshot: Snapshot, cav_rows: np.ndarray, weather: Weather, poses: np.ndarray | None = None
+    ) -> np.ndarray:
         """(n, H, W, 3) uint8 RGB images of the front cameras of the vehicles at snapshot rows
-        ``cav_rows`` (n,)."""
-        return self.render_with_depth(snapshot, cav_rows, weather)[0]
+        ``cav_rows`` (n,); ``poses`` as in :meth:`render_with_depth`."""
+        return self.render_with_depth(snapshot, cav_rows, weather, poses)[0]
 
     def render_with_depth(
-        self, snapshot: Snapshot, cav_rows: np.ndarray, weather: Weather
+        self, snapshot: Snapshot, cav_rows: np.ndarray, weather: Weather, poses: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
         """Images (n, H, W, 3) uint8 and depth buffers (n, H, W) float32 [m] (z along the optical axis,
-        +inf for sky) of the cameras at ``cav_rows``."""
+        +inf for sky) of the cameras of the vehicles at ``cav_rows``; ``poses`` (n, 4): camera x, y, z [m]
+        and yaw [rad] (level) where they are not the config's mounting (:meth:`poses`), e.g. a camera
+        beside the axis or looking sideways. Each camera leaves out its own vehicle's box."""
         c = self.config
         cav_rows = np.asarray(cav_rows, np.int64).reshape(-1)
+        poses = self.poses(snapshot, cav_rows) if poses is None else np.asarray(poses, np.float64)
+        if poses.shape != (len(cav_rows), 4):
+            raise ValueError(f"camera poses must have shape ({len(cav_rows)}, 4), got {poses.shape}")
         n = len(cav_rows)
         look = weather_look(weather, c)
         # actors: every valid one, each camera skips its own vehicle
@@ -254,7 +280,7 @@ class FrontCamera:
         out = np.empty((n, c.height, c.width, 3), np.uint8)
         depth = np.empty((n, c.height, c.width), np.float32)
         render_batch(
-            self.poses(snapshot, cav_rows),
+            np.ascontiguousarray(poses),
             skip,
             np.array([f, f, 0.5 * c.width, 0.5 * c.height]),
             np.array([c.near, c.max_range, math.radians(0.5 * c.fov_deg)]),
