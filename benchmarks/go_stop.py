@@ -8,8 +8,9 @@ whether the controller brakes. **The expert's decision** is SimLingo's brake rul
 (:func:`cmudrive.agents.control.brakes`: a desired speed below 0.4 m/s, or one the CAV exceeds by more
 than 10 %) applied to the expert's own target speed (``target_speed``: where its speed controller means
 to be in 0.5 s; it holds the brake below 0.3 m/s). **A model's decision**: its stop probability above 0.5
-for a model with a speed query (``speed_query``), else the same rule applied to the desired speed that
-SimLingo's controller reads from its speed waypoints (0.25 s to 0.75 s). The first line of the table
+for a model with a speed query (``speed_query``; what its agent uses), and the same rule applied to the
+desired speed that SimLingo's controller reads from its speed waypoints (0.25 s to 0.75 s; what the agent
+of a model without a speed query uses, shown for both). The first line of the table
 applies that waypoint rule to the expert's own speed waypoints: what a perfect copy of the expert's
 waypoints would decide.
 
@@ -67,18 +68,20 @@ def decision_table(
     }
 
 
-def model_stops(model: V2VVLA, rows: list[dict], speed: np.ndarray, batch: int = 64) -> np.ndarray:
-    """(N,) bool: the model's brake decisions on ``rows`` (no language)."""
-    out = []
+def model_stops(
+    model: V2VVLA, rows: list[dict], speed: np.ndarray, batch: int = 64
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """(N,) bool brake decisions on ``rows`` (no language): SimLingo's rule on the model's speed waypoints,
+    and, for a model with a speed query, its stop probability above 0.5 (else None)."""
+    rule, head = [], []
     with torch.no_grad():
         for i in range(0, len(rows), batch):
             pred = model.predict(rows[i : i + batch], max_new_tokens=0)
+            wp = pred.speed_waypoints.float().numpy().astype(np.float64)
+            rule.append(brakes(speed[i : i + batch], desired_speed(wp)))
             if pred.stop_prob is not None:
-                out.append(pred.stop_prob.float().numpy() > 0.5)
-            else:
-                wp = pred.speed_waypoints.float().numpy().astype(np.float64)
-                out.append(brakes(speed[i : i + batch], desired_speed(wp)))
-    return np.concatenate(out)
+                head.append(pred.stop_prob.float().numpy() > 0.5)
+    return np.concatenate(rule), (np.concatenate(head) if head else None)
 
 
 def main() -> None:
@@ -108,7 +111,10 @@ def main() -> None:
     }
     for path in checkpoints:
         model = V2VVLA.from_pretrained(path).eval()
-        tables[path] = decision_table(speed, expert_stops, model_stops(model, rows, speed))
+        rule, head = model_stops(model, rows, speed)
+        if head is not None:
+            tables[f"{path}, stop head (what the agent uses)"] = decision_table(speed, expert_stops, head)
+        tables[f"{path}, its speed waypoints, SimLingo's rule"] = decision_table(speed, expert_stops, rule)
     counts = next(iter(tables.values()))
     print(f"{len(rows)} held-out rows; share of rows where the decision is the expert's:")
     print("| decisions of | " + " | ".join(f"{n} ({c[1]})" for n, c in counts.items()) + " |")

@@ -26,12 +26,15 @@ from cmudrive.data.synthetic import write_synthetic_shards
 from cmudrive.model import V2VVLA
 from cmudrive.model.augment import YawAugment, rotate_camera, rotate_sample, rotated_frame
 from cmudrive.model.train import (
+    BUCKETS,
+    BucketSampler,
     DrivingDataset,
     TrainConfig,
     communication_rows,
     keep_rows,
     load_split,
     repeat_rows,
+    sampling_buckets,
     split_routes,
     train,
 )
@@ -103,6 +106,71 @@ def test_speed_dropout_hides_a_share_of_the_speeds_the_same_way_every_time(data:
         TrainConfig(data="d", out="o", speed_dropout=0.5, speed_input=False)
     blind = TrainConfig(data="d", out="o", speed_input=False).model_config()
     assert not blind.speed_in_prompt and TrainConfig(data="d", out="o").model_config().speed_in_prompt
+
+
+# ---- bucketed sampling ------------------------------------------------------------------------------
+def test_rows_fall_into_the_go_stop_and_driving_buckets() -> None:
+    import datasets
+
+    straight = np.stack([np.arange(1.0, 21.0), np.zeros(20)], axis=1)
+    turning = np.stack([np.arange(1.0, 21.0), np.linspace(0.0, 6.0, 20)], axis=1)  # 6 m left at 20 m
+    cases = [  # (speed [m/s], expert's target speed [m/s], reason, path) -> bucket
+        (0.0, 1.2, "NONE", straight, "starts"),  # pulls away: 1.2 m/s in 0.5 s
+        (0.0, 0.1, "RED_LIGHT", straight, "stands"),
+        (6.0, 4.0, "LEADING_VEHICLE", straight, "stops"),  # 6 m/s > 1.1 x 4 m/s: SimLingo brakes
+        (6.0, 6.0, "NONE", turning, "turns"),
+        (6.0, 5.8, "PEDESTRIAN", straight, "follows"),
+        (6.0, 6.2, "ROAD", straight, "slows"),
+        (8.0, 8.0, "NONE", straight, "cruises"),
+    ]
+    ds = datasets.Dataset.from_dict(
+        {
+            "speed": [c[0] for c in cases],
+            "target_speed": [c[1] for c in cases],
+            "reason": [c[2] for c in cases],
+            "path": [c[3].tolist() for c in cases],
+        }
+    )
+    assert [BUCKETS[b] for b in sampling_buckets(ds)] == [c[4] for c in cases]
+
+
+def test_bucket_shares_follow_the_power_of_their_sizes_and_repeat_per_epoch() -> None:
+    buckets = np.r_[np.zeros(900, np.int64), np.ones(100, np.int64)]  # 900 standing, 100 starting rows
+    as_collected = BucketSampler(buckets, seed=0, power=1.0)
+    drawn = list(as_collected)
+    assert len(drawn) == len(as_collected) == 1000 and sorted(drawn) == list(range(1000))  # a permutation
+    sqrt = BucketSampler(buckets, seed=0, power=0.5)  # 30 : 10 -> 750 : 250
+    rows = np.array(list(sqrt))
+    assert len(rows) == 1000 and (rows >= 900).sum() == 250
+    assert len(set(rows[rows >= 900].tolist())) == 100  # each starting row 2-3 times, all of them
+    assert len(set(rows[rows < 900].tolist())) == 750  # no standing row twice while others wait
+    equal = np.array(list(BucketSampler(buckets, seed=0, power=0.0)))
+    assert (equal >= 900).sum() == 500
+    again = BucketSampler(buckets, seed=0, power=0.5)
+    assert list(again) == rows.tolist()  # a function of (seed, epoch)
+    again.set_epoch(1)
+    assert list(again) != rows.tolist()
+    with pytest.raises(ValueError, match="bucket_power"):
+        TrainConfig(data="d", out="o", bucket_power=1.5)
+
+
+def test_batched_reads_give_the_rows_that_datasets_decodes(data: Path) -> None:
+    """DrivingDataset reads a batch with one Arrow take and decodes the images itself: the same values
+    and pixels as datasets' own row access, rotated or not."""
+    train_rows, _, _ = load_split(TrainConfig(data=str(data), out="unused", val_fraction=0.0))
+    plain = DrivingDataset(train_rows)
+    batch = plain.__getitems__([5, 0, 7])
+    for row, i in zip(batch, [5, 0, 7], strict=True):
+        reference = train_rows[i]
+        assert np.array_equal(np.asarray(row["camera"]), np.asarray(reference["camera"].convert("RGB")))
+        assert np.array_equal(np.asarray(row["merged_bev"]), np.asarray(reference["merged_bev"]))
+        assert np.allclose(row["path"], reference["path"]) and row["commentary"] == reference["commentary"]
+    turned = DrivingDataset(train_rows, YawAugment(prob=1.0), seed=3)
+    one_by_one = [turned[i] for i in (5, 0, 7)]
+    for a, b in zip(turned.__getitems__([5, 0, 7]), one_by_one, strict=True):
+        assert np.array_equal(np.asarray(a["camera"]), np.asarray(b["camera"]))
+        assert np.array_equal(np.asarray(a["merged_bev"]), np.asarray(b["merged_bev"]))
+        assert np.allclose(a["target_points"], b["target_points"])
 
 
 # ---- augmentation -----------------------------------------------------------------------------------
