@@ -72,6 +72,23 @@ def test_standing_waypoints_brake_and_overspeed_brakes() -> None:
     assert brake[0] == 0.0
 
 
+def test_a_models_own_go_stop_and_target_speed_replace_the_waypoint_rule() -> None:
+    """A speed-query model: stop brakes whatever the waypoints say; go drives toward the target speed even
+    where the speed waypoints (a gentle start: 0.1 m in 0.75 s) would brake."""
+    ctl = WaypointController(2)
+    path, _ = straight_waypoints(0.0, 2)
+    _, wp5 = straight_waypoints(5.0, 2)
+    crawl = np.stack([np.arange(1, 11) * 0.04, np.zeros(10)], axis=1)[None].repeat(2, 0)
+    rows_, speed = np.array([0, 1]), np.array([0.0, 3.0])
+    _, throttle, brake = ctl(rows_, speed, path, wp5, np.array([5.0, 5.0]), np.array([True, True]))
+    assert np.all(brake == 1.0) and np.all(throttle == 0.0)
+    assert ctl(rows_, speed, path, crawl)[2][0] == 1.0  # the waypoint rule brakes the gentle start
+    _, throttle, brake = ctl(rows_, speed, path, crawl, np.array([1.2, 5.0]), np.array([False, False]))
+    assert np.all(brake == 0.0) and np.all(throttle > 0.0)
+    with pytest.raises(ValueError, match="together"):
+        ctl(rows_, speed, path, crawl, np.array([1.2, 5.0]), None)
+
+
 def test_a_path_curving_left_steers_left_in_carla_sign_and_right_steers_right() -> None:
     s = np.arange(20.0)
     left = np.stack([s, 0.03 * s**2], axis=1)  # y + = left

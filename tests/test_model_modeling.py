@@ -32,7 +32,7 @@ def model() -> V2VVLA:
 
 
 def test_tiny_is_sized_for_the_closed_loop_budget(model: V2VVLA) -> None:
-    """0.59 M parameters: 16 CAVs per 50 ms tick on a 2-core CPU sets the size (docs/model.md)."""
+    """0.66 M parameters: 16 CAVs per 50 ms tick on a 2-core CPU sets the size (docs/model.md)."""
     counts = model.parameter_counts()
     assert 500_000 < counts["total"] < 2_000_000
     assert counts["trainable"] == counts["total"]  # tiny trains its randomly initialised LLM fully
@@ -116,6 +116,45 @@ def test_cooperative_model_reads_the_bev_and_the_other_cavs(model: V2VVLA) -> No
     other_bev = model(model.processor([{**row, "merged_bev": make_row(5)["merged_bev"]}])).path
     other_cavs = model(model.processor([{**row, "other_cavs": [[4, 20.0, 3.0, 0.0]]}])).path
     assert not torch.allclose(base, other_bev) and not torch.allclose(base, other_cavs)  # type: ignore[arg-type]
+
+
+def test_another_cavs_pose_reaches_the_waypoints_through_its_embedding(model: V2VVLA) -> None:
+    """cav_tokens: the prompt says only "4<CAV_POINT>"; where CAV 4 is and how it heads come in through the
+    pose MLP, so moving or turning it changes the outputs while the tokens stay the same."""
+    row = {**make_row(0), "other_cavs": [[4, 20.0, 3.0, 0.0]]}
+    batch = model.processor([row])
+    moved = model.processor([{**row, "other_cavs": [[4, 20.0, -3.0, 0.0]]}])
+    turned = model.processor([{**row, "other_cavs": [[4, 20.0, 3.0, 3.0]]}])
+    assert torch.equal(batch.input_ids, moved.input_ids) and torch.equal(batch.input_ids, turned.input_ids)
+    base = model(batch).path
+    assert not torch.allclose(base, model(moved).path) and not torch.allclose(base, model(turned).path)  # type: ignore[arg-type]
+
+
+def test_predict_gives_the_speed_querys_target_speed_and_stop_probability(model: V2VVLA) -> None:
+    prompts = [{k: v for k, v in r.items() if k != "commentary"} for r in rows(3)]
+    silent, talking = model.predict(prompts, max_new_tokens=0), model.predict(prompts, max_new_tokens=4)
+    out = model(model.processor(prompts))
+    assert silent.target_speed is not None and silent.stop_prob is not None
+    assert torch.allclose(silent.target_speed, out.target_speed, atol=1e-5)  # type: ignore[arg-type]
+    assert torch.allclose(silent.stop_prob, torch.sigmoid(out.stop_logit), atol=1e-5)  # type: ignore[arg-type]
+    assert torch.allclose(silent.target_speed, talking.target_speed, atol=1e-5)  # type: ignore[arg-type]
+    legacy = tiny(speed_query=False).predict(prompts, max_new_tokens=0)
+    assert legacy.target_speed is None and legacy.stop_prob is None
+
+
+def test_the_speed_loss_is_smooth_l1_of_the_target_speed_plus_the_stop_cross_entropy(model: V2VVLA) -> None:
+    """It reads the first query (the last one also predicts the answer's first token) and trains it."""
+    batch = model.processor(rows(4))
+    out = model(batch)
+    expected = torch.nn.functional.smooth_l1_loss(out.target_speed, batch.target_speed)  # type: ignore[arg-type]
+    expected = expected + torch.nn.functional.binary_cross_entropy_with_logits(out.stop_logit, batch.stop)  # type: ignore[arg-type]
+    assert torch.allclose(out.speed_loss, expected)  # type: ignore[arg-type]
+    model.zero_grad()
+    out.speed_loss.backward()  # type: ignore[union-attr]
+    grad = model.waypoint_queries.grad
+    assert grad is not None and grad[0].abs().sum() > 0  # the speed query
+    assert grad[1:].abs().sum() == 0  # the speed loss reaches no waypoint query directly
+    model.zero_grad()
 
 
 def test_baseline_ignores_bev_and_other_cavs() -> None:

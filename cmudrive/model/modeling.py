@@ -407,14 +407,18 @@ class V2VVLA(nn.Module):
 
     def waypoints(self, query_states: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(B, Q, H) -> path (B, n_path, 2), speed waypoints (B, n_speed, 2)."""
-        n, m = self.config.n_path, self.config.n_path + self.config.n_speed
-        return self.path_head(query_states[:, :n]), self.speed_head(query_states[:, n:m])
+        first = 1 if self.config.speed_query else 0  # the speed query comes first
+        n = first + self.config.n_path
+        return self.path_head(query_states[:, first:n]), self.speed_head(
+            query_states[:, n : n + self.config.n_speed]
+        )
 
     def speeds(self, query_states: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor] | None:
-        """(B, Q, H) -> target speed (B,) [m/s] and stop logit (B,) from the last query (``speed_query``)."""
+        """(B, Q, H) -> target speed (B,) [m/s] and stop logit (B,) from the speed query (``speed_query``).
+        It is the first query: the last one's state also predicts the answer's first token."""
         if self.target_speed_head is None:
             return None
-        return cast(tuple[torch.Tensor, torch.Tensor], self.target_speed_head(query_states[:, -1]))
+        return cast(tuple[torch.Tensor, torch.Tensor], self.target_speed_head(query_states[:, 0]))
 
     # ---- training forward ---------------------------------------------------------------------------
     def forward(self, batch: VLABatch) -> VLAOutput:
