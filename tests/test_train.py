@@ -132,6 +132,8 @@ def test_rows_fall_into_the_go_stop_and_driving_buckets() -> None:
         }
     )
     assert [BUCKETS[b] for b in sampling_buckets(ds)] == [c[4] for c in cases]
+    picked = ds.select([6, 0, 2])  # a selection (as load_split makes): its rows, in its order
+    assert [BUCKETS[b] for b in sampling_buckets(picked)] == ["cruises", "starts", "stops"]
 
 
 def test_bucket_shares_follow_the_power_of_their_sizes_and_repeat_per_epoch() -> None:

@@ -195,7 +195,8 @@ def sampling_buckets(ds: Any) -> np.ndarray:
     ("starts") or stays ("stands"); a moving one that brakes ("stops": SimLingo's brake rule for the
     expert's target speed); else, driving on, one whose path turns or changes lane ("turns"), one held
     back by an actor or obstacle ("follows"), by the road, a light or a sign ("slows"), or cruising."""
-    table = ds.data.table
+    # the rows of the selection, in its order (ds.data.table would be the whole underlying table)
+    table = ds.select_columns(["speed", "target_speed", "reason", "path"]).with_format("arrow")[:]
     speed = table.column("speed").to_numpy()
     stop = brakes(speed, table.column("target_speed").to_numpy())
     path = table.column("path").combine_chunks().flatten().flatten().to_numpy().reshape(len(speed), -1, 2)
