@@ -56,6 +56,7 @@ CHART_DPI = 110  # [dots/inch]
 VIDEO_SUFFIXES = (".mp4", ".gif")  # a replay video beside a log: LOG with one of these suffixes
 OPEN_TABLE_ROWS = 60  # [-] a longer infraction table starts folded
 DIGITS = {"infraction_score": 3}  # decimals per metric (others 2)
+NO_SCENARIO = "(no scenario)"  # the scenario type "" of routes without one
 
 CSS = """
 body{font-family:system-ui,-apple-system,"Segoe UI",Roboto,sans-serif;margin:24px auto;max-width:1320px;
@@ -164,7 +165,7 @@ def _bars(
             )
     ax.set_xticks(x)
     ax.set_xticklabels(
-        [c or "(none)" for c in categories], fontsize=8, rotation=90 if len(categories) > 8 else 0
+        [c or NO_SCENARIO for c in categories], fontsize=8, rotation=90 if len(categories) > 8 else 0
     )
     for tick in ax.get_xticklabels():
         tick.set_parse_math(False)
@@ -358,8 +359,7 @@ def _runs_section(comparison: Comparison) -> list[str]:
     rows = []
     for g, group in enumerate(comparison.groups):
         for run in group.runs:
-            code = ((run.manifest or {}).get("runs") or [{}])[-1].get("code") or {}
-            commit = str(code.get("git_commit") or "")[:10] + (" (dirty)" if code.get("git_dirty") else "")
+            commit = _code(run)
             setup = str((run.manifest or {}).get("setup_sha256", ""))[:12]
             options = ", ".join(f"{k}={v}" for k, v in sorted((run.setup.get("agent_options") or {}).items()))
             rows.append(
@@ -371,6 +371,13 @@ def _runs_section(comparison: Comparison) -> list[str]:
                 f'<td class="l"><code>{esc(setup or EMPTY)}</code></td>'
                 f'<td class="l"><code>{esc(commit or EMPTY)}</code></td>'
                 "</tr>"
+            )
+    for group in comparison.groups:
+        commits = {_code(run) for run in group.runs}
+        if len(commits) > 1:
+            rows.append(
+                f'<tr><td class="l note" colspan="8">note: the runs of {esc(group.label)} ran different code '
+                f"({esc(', '.join(sorted(commits)))}); the setup, not the code, groups runs</td></tr>"
             )
     first = comparison.groups[0].runs[0]
     routes = f"{len(first.routes)} routes" + (
@@ -389,6 +396,14 @@ def _runs_section(comparison: Comparison) -> list[str]:
         *rows,
         "</table></div>",
     ]
+
+
+def _code(run: Run) -> str:
+    """The code a run's last invocation ran: its git commit, cut to 10 digits, and whether it was dirty."""
+    entries = (run.manifest or {}).get("runs") or [{}]
+    last = entries[-1] if isinstance(entries[-1], dict) else {}
+    code = last.get("code") or {}
+    return str(code.get("git_commit") or "")[:10] + (" (dirty)" if code.get("git_dirty") else "")
 
 
 def _overall_section(page: Page) -> list[str]:
@@ -443,7 +458,7 @@ def _breakdown_section(page: Page, name: str, title: str) -> list[str]:
     cats = c.categories[name]
     lines = [f"<h2>Per {esc(title)}</h2>"]
     if not cats:
-        return [*lines, f'<p class="note">No route of these runs has a {esc(title)}: left out.</p>']
+        return [*lines, f'<p class="note">No route of these runs has a {esc(title)} (left out).</p>']
     metrics = [*METRICS, *([B2D_SUCCESS] if name == "ability" else []), "num_routes"]
     sizes = [len(g.runs) for g in c.groups]
     head = "".join(f'<th colspan="{len(metrics)}" class="l">{h}</th>' for h in _group_heads(c))
@@ -458,7 +473,9 @@ def _breakdown_section(page: Page, name: str, title: str) -> list[str]:
         cells = ""
         for g, cell in enumerate(c.scores[name][cat]):
             cells += "".join(_cell(cell.get(m) if cell else None, m, sizes[g]) for m in metrics)
-        lines.append(f'<tr data-category="{esc(cat)}"><td class="l">{esc(cat or "(none)")}</td>{cells}</tr>')
+        lines.append(
+            f'<tr data-category="{esc(cat)}"><td class="l">{esc(cat or NO_SCENARIO)}</td>{cells}</tr>'
+        )
     lines.append("</table></div>")
     if name == "ability":
         lines.append(
@@ -549,8 +566,8 @@ def _replay_section(page: Page) -> list[str]:
         '<p class="note">Route logs of <code>eval --record</code>. The command renders the route as a BEV '
         "video beside its log, where this page links it once made.</p>",
         '<div class="scroll"><table id="replays"><tr><th class="l">group</th><th>seed</th>'
-        '<th class="l">route</th><th>DS</th><th>records</th><th class="l">log</th><th class="l">video</th>'
-        '<th class="l">command</th></tr>',
+        '<th class="l">route</th><th>DS</th><th>infraction records</th><th class="l">log</th>'
+        '<th class="l">video</th><th class="l">command</th></tr>',
         *rows,
         "</table></div>",
     ]

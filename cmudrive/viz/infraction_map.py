@@ -35,7 +35,7 @@ KIND_MARKERS: dict[str, tuple[str, str]] = {
     "collisions_layout": ("D", "collision: layout"),
     "red_light": ("^", "red light"),
     "stop_infraction": ("8", "stop sign"),
-    "outside_route_lanes": ("d", "outside route lanes"),
+    "outside_route_lanes": ("p", "outside route lanes"),
     "yield_emergency_vehicle_infractions": ("<", "no yield to emergency vehicle"),
     "scenario_timeouts": ("h", "scenario timeout"),
     "route_dev": (">", "route deviation"),
