@@ -458,7 +458,10 @@ def _breakdown_section(page: Page, name: str, title: str) -> list[str]:
     cats = c.categories[name]
     lines = [f"<h2>Per {esc(title)}</h2>"]
     if not cats:
-        return [*lines, f'<p class="note">No route of these runs has a {esc(title)} (left out).</p>']
+        return [
+            *lines,
+            f'<p class="note">No route of these runs falls in any {esc(title)} group (left out).</p>',
+        ]
     metrics = [*METRICS, *([B2D_SUCCESS] if name == "ability" else []), "num_routes"]
     sizes = [len(g.runs) for g in c.groups]
     head = "".join(f'<th colspan="{len(metrics)}" class="l">{h}</th>' for h in _group_heads(c))

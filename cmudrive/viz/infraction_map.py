@@ -49,6 +49,7 @@ MARKER_SIZE = 80.0  # [pt^2] an infraction
 HOLLOW_SIZE = 40.0  # [pt^2] a min-speed record: smaller, it is no infraction
 MARGIN = 40.0  # [m] around the markers
 MIN_SPAN = 160.0  # [m] shortest side of the view
+MIN_ASPECT, MAX_ASPECT = 0.55, 1.2  # [-] height / width of the view
 DPI = 110  # [dots/inch]
 AXES_WIDTH = 6.5  # [in] of the map; its height follows the view's aspect
 LEGEND_WIDTH = 3.0  # [in] beside it
@@ -132,6 +133,12 @@ def focus(ax: Axes, road_map: RoadMap, points: Sequence[InfractionPoint]) -> Non
     xmin, ymin, xmax, ymax = road_map.bounds
     lo_x, hi_x = _span(min(xs), max(xs), xmin, xmax)
     lo_y, hi_y = _span(min(ys), max(ys), ymin, ymax)
+    # a view far wider than tall (or the reverse) leaves the figure mostly blank: widen the short side
+    dx, dy = hi_x - lo_x, hi_y - lo_y
+    if dy < MIN_ASPECT * dx:
+        lo_y, hi_y = lo_y - 0.5 * (MIN_ASPECT * dx - dy), hi_y + 0.5 * (MIN_ASPECT * dx - dy)
+    elif dy > MAX_ASPECT * dx:
+        lo_x, hi_x = lo_x - 0.5 * (dy / MAX_ASPECT - dx), hi_x + 0.5 * (dy / MAX_ASPECT - dx)
     ax.set_xlim(lo_x, hi_x)
     ax.set_ylim(lo_y, hi_y)
 
@@ -161,7 +168,7 @@ def save_infraction_map(
     focus(ax, road_map, points)
     (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
     aspect = (y1 - y0) / max(x1 - x0, 1.0)
-    fig.set_size_inches(AXES_WIDTH + LEGEND_WIDTH, min(max(AXES_WIDTH * aspect, 3.5), 9.0) + 0.8)
+    fig.set_size_inches(AXES_WIDTH + LEGEND_WIDTH, AXES_WIDTH * aspect + 0.8)
     ax.set_title(title)
     if counts:
         ax.legend(
@@ -173,5 +180,5 @@ def save_infraction_map(
             title="colour: run · shape: kind",
             title_fontsize=8,
         )
-    fig.savefig(path, dpi=DPI)
+    fig.savefig(path, dpi=DPI, bbox_inches="tight", pad_inches=0.1)  # tight: the legend beside the map
     return counts
