@@ -284,7 +284,8 @@ def _bar_chart(
         tick.set_parse_math(False)  # a group name from a record is text, not mathtext ("$\\frac{$" raised)
         if k not in groups:
             tick.set_color("0.6")
-    ax.set_xlim(-0.7, len(labels) - 0.3)
+    pad = max(0.0, 0.5 * (4 - len(labels)))  # few groups: bars no wider than with four
+    ax.set_xlim(-0.7 - pad, len(labels) - 0.3 + pad)
     ax.set_ylim(0.0, 113.0)
     ax.set_yticks(np.arange(0, 101, 20))
     ax.set_ylabel("DS (points, 0-100) / SR (%)")
@@ -301,7 +302,9 @@ def write_charts(s: dict[str, Any], out_dir: Path, mean_ds: float | None = None)
     returns their paths."""
     types = list(s["by_scenario_type"])  # those with routes, in SCENARIO_TYPES order (metrics.breakdown)
     paths = [out_dir / "by_scenario_type.png", out_dir / "by_num_cavs.png", out_dir / "by_weather.png"]
-    _bar_chart(paths[0], s["by_scenario_type"], types, xlabel="scenario type", size=(15.0, 6.0), rotate=True,
+    many = len(types) > 8  # rotated labels on a chart as wide as they need (15 in for all 44 types)
+    size = (min(15.0, 2.5 + 0.3 * len(types)), 6.0) if many else (8.0, 4.5)  # [in], the others' size
+    _bar_chart(paths[0], s["by_scenario_type"], types, xlabel="scenario type", size=size, rotate=many,
                title="Driving score and success rate per scenario type", mean_ds=mean_ds)  # fmt: skip
     _bar_chart(paths[1], s["by_num_cavs"], list(s["by_num_cavs"]), xlabel="number of CAVs on the route",
                size=(8.0, 4.5), rotate=False, title="Driving score and success rate by number of CAVs",
