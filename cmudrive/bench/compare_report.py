@@ -62,8 +62,8 @@ CSS = """
 body{font-family:system-ui,-apple-system,"Segoe UI",Roboto,sans-serif;margin:24px auto;max-width:1320px;
 color:#222;padding:0 16px;line-height:1.4}
 h1{font-size:1.6em;margin-bottom:.2em}h2{margin-top:1.6em;border-bottom:1px solid #ddd;padding-bottom:4px}
-table{border-collapse:collapse;margin:8px 0 16px;font-size:13px}
-th,td{border:1px solid #d6d6d6;padding:3px 8px;text-align:right;white-space:nowrap}
+table{border-collapse:collapse;margin:8px 0 16px;font-size:12px}
+th,td{border:1px solid #d6d6d6;padding:3px 6px;text-align:right;white-space:nowrap}
 th{background:#f2f4f7}td.l,th.l{text-align:left}
 tr:nth-child(even) td{background:#fafbfc}.scroll{overflow-x:auto}
 .swatch{display:inline-block;width:11px;height:11px;border-radius:2px;margin-right:5px;vertical-align:-1px}
@@ -152,6 +152,10 @@ def _bars(
         errs = np.array([s.std if s and s.std is not None else np.nan for s in stats])  # NaN: no whisker
         pos = x - 0.4 + width * (g + 0.5)
         ax.bar(pos, means, width, color=colours[g])
+        for xi in pos[np.isnan(means)]:  # a category none of the group's runs has: "-", not an empty 0
+            ax.text(
+                xi, 0.01, EMPTY, transform=ax.get_xaxis_transform(), ha="center", va="bottom", color="0.45"
+            )
         spread = np.isfinite(errs) & np.isfinite(means)
         if spread.any():
             ax.errorbar(
