@@ -1111,16 +1111,20 @@ def train_model(
 
 @app.command("report")
 def report(
-    results: Annotated[Path, typer.Argument(help="results folder or results.json")],
-    output: Annotated[Path, typer.Option("-o", "--output", help="folder for tables and PNGs")] = Path(
-        "report"
-    ),
+    runs: Annotated[
+        list[Path], typer.Argument(help="run folders of cmudrive eval (or their results.json), one or more")
+    ],
+    output: Annotated[
+        Path, typer.Option("-o", "--output", help="folder for the page, tables and PNGs")
+    ] = Path("report"),
 ) -> None:
-    """Tables and charts (per scenario type, ability, weather, number of CAVs) from evaluation results."""
-    from cmudrive.bench.report import write_report
+    """An HTML page (OUTPUT/index.html, opens from disk) comparing runs: seeds of one setup as mean ± std,
+    DS/SR/RC/IS overall and per ability, scenario type, CAV count and weather, infraction maps, replays.
+    With one run also summary.md, CSV tables and the single-run charts. Runs must share a route set."""
+    from cmudrive.bench.compare_report import write_comparison
 
     try:
-        paths = write_report(results, output)
+        paths = write_comparison(runs, output)
     except (OSError, ValueError, MapError) as exc:
         _fail(exc)
     for p in paths:

@@ -17,7 +17,20 @@ from cmudrive.bench.recording import RouteLog, RouteLogError, RouteRecorder, inf
 from cmudrive.bench.records import Infraction
 from cmudrive.maps import LanePos, RoadMap, RoutePlanner
 from cmudrive.sim import Controls, Role, Snapshot, World, WorldConfig
-from cmudrive.viz.replay import COLLISION_COLOUR, LIGHT_COLOUR, render_replay_frame, replay, replay_renderer
+from cmudrive.viz.bev import BevView
+from cmudrive.viz.replay import (
+    COLLISION_COLOUR,
+    LIGHT_COLOUR,
+    OTHER_COLOUR,
+    SHORT_LABELS,
+    SLOW_COLOUR,
+    draw_events,
+    draw_legend,
+    legend_box,
+    render_replay_frame,
+    replay,
+    replay_renderer,
+)
 
 TICKS = 100
 REMOVE_CAV1_AT = 60  # tick at which CAV 1 finishes and leaves the world
@@ -166,23 +179,66 @@ def test_replay_writes_one_gif_frame_per_rendered_tick(
 
 def test_replay_frame_marks_infractions_in_their_colours(log: RouteLog, mini: RoadMap) -> None:
     """The collision ring is red while the event is fresh (3 s), absent before it and after; the red-light
-    ring is orange. The frame at the collision is written to /tmp for a look."""
+    ring is orange; the legend (top right, on every frame) names both marks. The frame at the collision is
+    written to /tmp for a look."""
     renderer, centres = replay_renderer(log, mini, pixels_per_meter=4.0)
     assert centres is None
-
-    def count(frame: np.ndarray, colour: tuple[int, int, int]) -> int:
-        return int(np.all(frame == np.array(colour, np.uint8), axis=-1).sum())
-
     at = render_replay_frame(log, renderer, COLLISION_TICK, title="mini_0")
+    box = legend_box(at.shape[1], [e["key"] for e in log.events], renderer.font_px)
+    assert box is not None
+
+    def count(frame: np.ndarray, colour: tuple[int, int, int], legend: bool = False) -> int:
+        """Pixels of ``colour`` outside the legend (``legend``: inside it)."""
+        inside = np.zeros(frame.shape[:2], bool)
+        inside[box[1] : box[3] + 1, box[0] : box[2] + 1] = True
+        hit = np.all(frame == np.array(colour, np.uint8), axis=-1)
+        return int((hit & (inside if legend else ~inside)).sum())
+
     before = render_replay_frame(log, renderer, COLLISION_TICK - 1)
     late = render_replay_frame(log, renderer, COLLISION_TICK + 60)
     assert count(at, COLLISION_COLOUR) > 100 and count(before, COLLISION_COLOUR) == 0
     assert count(late, COLLISION_COLOUR) == 0 and count(late, LIGHT_COLOUR) > 100
+    for frame in (at, before, late):  # the legend: a row for collisions and one for the red light
+        assert (
+            count(frame, COLLISION_COLOUR, legend=True) > 20 and count(frame, LIGHT_COLOUR, legend=True) > 20
+        )
+        assert count(frame, SLOW_COLOUR, legend=True) == 0  # the log has no min-speed record
     from PIL import Image
 
     Image.fromarray(render_replay_frame(log, renderer, RED_LIGHT_TICK, title="mini_0")).save(
         Path("/tmp") / "cmudrive_replay_marker.png"
     )
+
+
+def test_a_min_speed_record_is_a_too_slow_triangle_not_a_ring() -> None:
+    """A min-speed record costs nothing: it is drawn as a light-blue triangle labelled "too slow", with no
+    pixel of a ring colour, and the legend names it "too slow"; a collision at the same spot is a ring."""
+    view = BevView(x_min=0.0, y_max=100.0, width=200, height=200, pixels_per_meter=2.0)
+    blank = np.zeros((200, 200, 3), np.uint8)
+    slow = {"tick": 0, "cav": 0, "key": "min_speed_infractions", "x": 50.0, "y": 50.0, "message": "80 %"}
+    hit = dict(slow, key="collisions_vehicle")
+
+    def pixels(frame: np.ndarray, colour: tuple[int, int, int]) -> np.ndarray:
+        return np.all(frame == np.array(colour, np.uint8), axis=-1)
+
+    slow_frame = draw_events(blank, view, [slow])
+    hit_frame = draw_events(blank, view, [hit])
+    assert SHORT_LABELS["min_speed_infractions"] == "too slow"
+    assert pixels(slow_frame, SLOW_COLOUR).sum() > 30
+    assert not any(pixels(slow_frame, c).any() for c in (COLLISION_COLOUR, LIGHT_COLOUR, OTHER_COLOUR))
+    assert pixels(hit_frame, COLLISION_COLOUR).sum() > 30 and not pixels(hit_frame, SLOW_COLOUR).any()
+    # the shapes differ: the ring's pixel at the centre's left (on the circle) is empty in the triangle
+    r = 8  # [px] MARKER_MIN_RADIUS at 2 px/m (3 m ring = 6 px)
+    ring_row = pixels(hit_frame, COLLISION_COLOUR)[100, 100 - r - 1 : 100 - r + 2]
+    assert ring_row.any() and not pixels(slow_frame, SLOW_COLOUR)[100, 100 - r - 1 : 100 - r + 2].any()
+
+    wide = np.zeros((200, 400, 3), np.uint8)
+    legend = draw_legend(wide, ["min_speed_infractions", "collisions_vehicle"])
+    box = legend_box(400, ["min_speed_infractions", "collisions_vehicle"])
+    assert box is not None and box[2] <= 400 and box[0] > 200  # in the top-right corner
+    assert pixels(legend, SLOW_COLOUR).any() and pixels(legend, COLLISION_COLOUR).any()
+    assert not pixels(legend, LIGHT_COLOUR).any()
+    assert legend_box(400, []) is None and draw_legend(wide, []) is wide
 
 
 @pytest.mark.parametrize("damage", ["missing", "garbage", "truncated", "version", "field"])

@@ -4,7 +4,7 @@ Typical use::
 
     cmudrive eval --routes smoke --agent cmudrive.agents.pid:PidAgent --out out/eval --workers 2
     cmudrive eval --routes cmudrive44 --routes-subset 0-5 --out out/first6
-    cmudrive report out/eval -o out/report
+    cmudrive report out/eval out/eval-seed1 -o out/report   # an HTML page comparing runs
     cmudrive export out/eval --format leaderboard --per route   # leaderboard / Bench2Drive files
 
 or in Python: ``read_routes`` -> ``run_evaluation(routes, agent, out, LocalExecutor(2))``.

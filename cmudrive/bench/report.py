@@ -7,11 +7,14 @@ summarises them (``metrics.summarize``) into::
     summary.md               overall metrics and breakdowns by scenario type, ability, weather, CAV count
     summary.csv              the same numbers, one row per (breakdown, group)
     routes.csv               one row per route
-    by_scenario_type.png     DS and SR for all 44 scenario types (the paper's Figure 3)
+    by_scenario_type.png     DS and SR per scenario type with routes (the paper's Figure 3 on cmudrive220)
     by_num_cavs.png          DS and SR per number of CAVs on the route
     by_weather.png           DS and SR per weather preset
 
-Charts are drawn with matplotlib's Agg canvas (no pyplot state), 150 dpi.
+Charts are drawn with matplotlib's Agg canvas (no pyplot state), 150 dpi. A group without routes (a scenario
+type, ability or weather no route has) is left out of every table and chart alike; routes without a scenario
+are the type "(none)". ``cmudrive report`` writes these for one run beside its comparison page
+(:mod:`cmudrive.bench.compare_report`).
 
 Records are validated when read (``RouteResult.from_json``: ranges, statuses, consistency); a bad one is
 a ``ResultsError`` naming the file and the record. Text from the records is written inertly: markdown
@@ -37,7 +40,6 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
 from cmudrive.bench.metrics import (
-    ABILITIES,
     is_crashed,
     is_success,
     route_comfort,
@@ -45,7 +47,6 @@ from cmudrive.bench.metrics import (
     summarize,
 )
 from cmudrive.bench.records import INFRACTION_KEYS, RouteResult
-from cmudrive.bench.scenario_types import SCENARIO_TYPES
 
 DPI = 150  # [dots/inch] of the PNG charts
 DS_COLOR = "#1f5fa8"  # driving score bars
@@ -143,16 +144,12 @@ def _md_table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> list[str]
     return [*lines, ""]
 
 
-def _group_rows(groups: dict[Any, dict[str, Any]], order: Sequence[Any] = ()) -> list[list[Any]]:
-    """One row per group: name, routes, DS, SR; groups in ``order`` appear even without routes."""
-    keys = [*order, *(k for k in groups if k not in set(order))]
-    rows = []
-    for k in keys:
-        g = groups.get(k)
-        rows.append(
-            [k or "(none)", g["num_routes"] if g else 0, g and g["driving_score"], g and g["success_rate"]]
-        )
-    return rows
+def _group_rows(groups: dict[Any, dict[str, Any]]) -> list[list[Any]]:
+    """One row per group with routes (``metrics.breakdown`` lists only those, in order): name, routes, DS,
+    SR."""
+    return [
+        [k or "(none)", g["num_routes"], g["driving_score"], g["success_rate"]] for k, g in groups.items()
+    ]
 
 
 def _overall_rows(s: dict[str, Any]) -> list[list[Any]]:
@@ -184,15 +181,16 @@ def summary_markdown(s: dict[str, Any], title: str = "cmudrive benchmark report"
         "## Multi-ability (Bench2Drive success, %)",
         "",
     ]
-    lines += _md_table(["ability", "success rate (%)"], [[k, v] for k, v in s["multi_ability"].items()])
+    abilities = [[k, v] for k, v in s["multi_ability"].items() if v is not None]  # groups with routes
+    lines += _md_table(["ability", "success rate (%)"], abilities)
     lines += ["## By ability", ""]
-    lines += _md_table(["ability", *head[1:]], _group_rows(s["by_ability"], tuple(ABILITIES)))
+    lines += _md_table(["ability", *head[1:]], _group_rows(s["by_ability"]))
     lines += ["## By number of CAVs", ""]
     lines += _md_table(["CAVs", *head[1:]], _group_rows(s["by_num_cavs"]))
     lines += ["## By weather", ""]
     lines += _md_table(["weather", *head[1:]], _group_rows(s["by_weather"]))
     lines += ["## By scenario type", "", "![DS and SR by scenario type](by_scenario_type.png)", ""]
-    lines += _md_table(["scenario type", *head[1:]], _group_rows(s["by_scenario_type"], SCENARIO_TYPES))
+    lines += _md_table(["scenario type", *head[1:]], _group_rows(s["by_scenario_type"]))
     per_km = s["infractions_per_km"]
     if per_km is not None:
         lines += ["## Infractions per km driven (all CAVs)", ""]
@@ -286,7 +284,8 @@ def _bar_chart(
         tick.set_parse_math(False)  # a group name from a record is text, not mathtext ("$\\frac{$" raised)
         if k not in groups:
             tick.set_color("0.6")
-    ax.set_xlim(-0.7, len(labels) - 0.3)
+    pad = max(0.0, 0.5 * (4 - len(labels)))  # few groups: bars no wider than with four
+    ax.set_xlim(-0.7 - pad, len(labels) - 0.3 + pad)
     ax.set_ylim(0.0, 113.0)
     ax.set_yticks(np.arange(0, 101, 20))
     ax.set_ylabel("DS (points, 0-100) / SR (%)")
@@ -301,9 +300,11 @@ def _bar_chart(
 def write_charts(s: dict[str, Any], out_dir: Path, mean_ds: float | None = None) -> list[Path]:
     """The three PNG charts of a summary (``mean_ds``: reference line, the mean DS of the routes evaluated);
     returns their paths."""
-    types = [*SCENARIO_TYPES, *(k for k in s["by_scenario_type"] if k not in SCENARIO_TYPES)]
+    types = list(s["by_scenario_type"])  # those with routes, in SCENARIO_TYPES order (metrics.breakdown)
     paths = [out_dir / "by_scenario_type.png", out_dir / "by_num_cavs.png", out_dir / "by_weather.png"]
-    _bar_chart(paths[0], s["by_scenario_type"], types, xlabel="scenario type", size=(15.0, 6.0), rotate=True,
+    many = len(types) > 8  # rotated labels on a chart as wide as they need (15 in for all 44 types)
+    size = (min(15.0, 2.5 + 0.3 * len(types)), 6.0) if many else (8.0, 4.5)  # [in], the others' size
+    _bar_chart(paths[0], s["by_scenario_type"], types, xlabel="scenario type", size=size, rotate=many,
                title="Driving score and success rate per scenario type", mean_ds=mean_ds)  # fmt: skip
     _bar_chart(paths[1], s["by_num_cavs"], list(s["by_num_cavs"]), xlabel="number of CAVs on the route",
                size=(8.0, 4.5), rotate=False, title="Driving score and success rate by number of CAVs",

@@ -1,6 +1,9 @@
 """Replay a recorded route (``cmudrive.bench.recording``) as a BEV video, with each CAV's route and its
 infractions marked: a ring and a short label at the event position, visible for a few seconds from the
-event's tick (collisions red, red lights and stop signs orange, driving outside the route's lanes yellow).
+event's tick (collisions red, red lights and stop signs orange, driving outside the route's lanes yellow,
+other failures grey). A minimum-speed record is not an infraction (it costs nothing, Bench2Drive records it
+for the efficiency score), so it gets another shape: a blue downward triangle labelled "too slow", not a
+ring that reads like a collision. A legend in the top-right corner names the marks the log contains.
 """
 
 from __future__ import annotations
@@ -32,6 +35,8 @@ COLLISION_COLOUR = (255, 48, 48)  # red
 LIGHT_COLOUR = (255, 150, 20)  # orange: red lights and stop signs
 LANE_COLOUR = (255, 221, 0)  # yellow: driving outside the route's lanes
 OTHER_COLOUR = (235, 235, 235)  # anything else (route deviation, blocked, timeouts, ...)
+SLOW_COLOUR = (90, 175, 255)  # light blue: a minimum-speed record ("too slow"), drawn as a triangle
+SLOW_KEY = "min_speed_infractions"  # recorded only (factor 1): not a penalised infraction
 SHORT_LABELS: dict[str, str] = {
     "collisions_pedestrian": "hit pedestrian",
     "collisions_vehicle": "hit vehicle",
@@ -50,7 +55,10 @@ LABEL_PANEL = (25, 25, 25)  # behind a marker's label
 
 
 def event_colour(key: str) -> tuple[int, int, int]:
-    """Marker colour of an infraction key: collisions red, red light / stop orange, outside lane yellow."""
+    """Marker colour of an infraction key: collisions red, red light / stop orange, outside lane yellow,
+    too slow light blue, anything else light grey."""
+    if key == SLOW_KEY:
+        return SLOW_COLOUR
     if key.startswith("collision"):
         return COLLISION_COLOUR
     if key in ("red_light", "stop_infraction"):
@@ -58,6 +66,17 @@ def event_colour(key: str) -> tuple[int, int, int]:
     if key == "outside_route_lanes":
         return LANE_COLOUR
     return OTHER_COLOUR
+
+
+# legend rows: (what the row names, the colour, whether the mark is the "too slow" triangle); a row is
+# shown when one of the log's events has that colour
+LEGEND_ROWS: tuple[tuple[str, tuple[int, int, int], bool], ...] = (
+    ("collision", COLLISION_COLOUR, False),
+    ("red light / stop", LIGHT_COLOUR, False),
+    ("outside lanes", LANE_COLOUR, False),
+    ("deviation, blocked, timeout", OTHER_COLOUR, False),
+    ("too slow (no penalty)", SLOW_COLOUR, True),
+)
 
 
 # ---------------------------------------------------------------------- replay
@@ -159,16 +178,17 @@ def render_replay_frame(
         log.snapshot(tick), center=center, size_m=size_m, routes=log.cav_routes, title=title
     )
     events = log.active_events(tick)
-    if not events:
-        return frame
-    return draw_events(frame, renderer.view(center, size_m), events, font_px=renderer.font_px)
+    if events:
+        frame = draw_events(frame, renderer.view(center, size_m), events, font_px=renderer.font_px)
+    return draw_legend(frame, [str(e["key"]) for e in log.events], font_px=renderer.font_px)
 
 
 def draw_events(
     frame: np.ndarray, view: BevView, events: Sequence[dict[str, Any]], font_px: int = 13
 ) -> np.ndarray:
-    """``frame`` with a ring at each event's position in its colour (:func:`event_colour`) and a short
-    label ("CAV 0: red light") on a dark panel beside it; labels of events at one spot are stacked."""
+    """``frame`` with a ring at each event's position in its colour (:func:`event_colour`), a triangle for a
+    minimum-speed record, and a short label ("CAV 0: red light") on a dark panel beside it; labels of
+    events at one spot are stacked."""
     image = Image.fromarray(frame)
     draw = ImageDraw.Draw(image)
     font = _font(font_px)
@@ -177,8 +197,11 @@ def draw_events(
     for ev in events:
         cx, cy = (view.to_pixel(np.array([ev["x"], ev["y"]], dtype=np.float64)) - 0.5).tolist()
         colour = event_colour(str(ev["key"]))
-        draw.ellipse((cx - r, cy - r, cx + r, cy + r), outline=colour, width=MARKER_LINE)
-        draw.ellipse((cx - 2, cy - 2, cx + 2, cy + 2), fill=colour)
+        if ev["key"] == SLOW_KEY:
+            _triangle(draw, cx, cy, r, colour)
+        else:
+            draw.ellipse((cx - r, cy - r, cx + r, cy + r), outline=colour, width=MARKER_LINE)
+            draw.ellipse((cx - 2, cy - 2, cx + 2, cy + 2), fill=colour)
         spot = (round(cx), round(cy))
         line = stacked.get(spot, 0)
         stacked[spot] = line + 1
@@ -187,6 +210,58 @@ def draw_events(
         left, top, right, bottom = draw.textbbox(xy, label, font=font)
         draw.rectangle((left - 3, top - 2, right + 3, bottom + 2), fill=LABEL_PANEL, outline=colour)
         draw.text(xy, label, fill=colour, font=font)
+    return np.asarray(image).copy()
+
+
+def _triangle(
+    draw: ImageDraw.ImageDraw, cx: float, cy: float, r: float, colour: tuple[int, int, int]
+) -> None:
+    """A downward-pointing hollow triangle of circumradius ``r`` [px] centred on (cx, cy)."""
+    corners = [(cx - 0.87 * r, cy - 0.5 * r), (cx + 0.87 * r, cy - 0.5 * r), (cx, cy + r)]
+    draw.polygon(corners, outline=colour, width=MARKER_LINE)
+
+
+def legend_rows(keys: Sequence[str]) -> list[tuple[str, tuple[int, int, int], bool]]:
+    """The legend rows (text, colour, triangle?) of the marks that events with ``keys`` get, in
+    ``LEGEND_ROWS`` order."""
+    shown = {event_colour(k) for k in keys}
+    return [row for row in LEGEND_ROWS if row[1] in shown]
+
+
+def legend_box(frame_width: int, keys: Sequence[str], font_px: int = 13) -> tuple[int, int, int, int] | None:
+    """Pixel box (left, top, right, bottom) of the legend :func:`draw_legend` draws on a frame
+    ``frame_width`` px wide; None when it draws none."""
+    rows = legend_rows(keys)
+    if not rows:
+        return None
+    font = _font(font_px)
+    probe = ImageDraw.Draw(Image.new("RGB", (1, 1)))
+    text = max(probe.textlength(t, font=font) for t, _, _ in rows)
+    width = round(text + font_px + 18)
+    left = max(frame_width - width - 8, 0)
+    return left, 8, left + width, 8 + (font_px + 6) * len(rows) + 6
+
+
+def draw_legend(frame: np.ndarray, keys: Sequence[str], font_px: int = 13) -> np.ndarray:
+    """``frame`` with a legend panel in its top-right corner: one row per kind of mark among ``keys`` (the
+    infraction keys of the log's events), its symbol in its colour; ``frame`` itself when ``keys`` is
+    empty."""
+    box = legend_box(frame.shape[1], keys, font_px)
+    if box is None:
+        return frame
+    image = Image.fromarray(frame)
+    draw = ImageDraw.Draw(image)
+    font = _font(font_px)
+    line = font_px + 6  # [px] row height
+    sym = 0.5 * font_px  # [px] symbol circumradius
+    draw.rectangle(box, fill=LABEL_PANEL)
+    for i, (text, colour, slow) in enumerate(legend_rows(keys)):
+        cx, cy = box[0] + 6 + sym, box[1] + 3 + line * (i + 0.5)
+        if slow:
+            _triangle(draw, cx, cy, sym, colour)
+        else:
+            draw.ellipse((cx - sym, cy - sym, cx + sym, cy + sym), outline=colour, width=2)
+        draw.text((cx + sym + 6, cy), text, fill=colour, font=font, anchor="lm")
     return np.asarray(image).copy()
 
 
