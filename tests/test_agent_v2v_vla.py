@@ -85,7 +85,11 @@ def test_a_models_own_go_stop_and_target_speed_replace_the_waypoint_rule() -> No
     assert ctl(rows_, speed, path, crawl)[2][0] == 1.0  # the waypoint rule brakes the gentle start
     _, throttle, brake = ctl(rows_, speed, path, crawl, np.array([1.2, 5.0]), np.array([False, False]))
     assert np.all(brake == 0.0) and np.all(throttle > 0.0)
-    with pytest.raises(ValueError, match="together"):
+    # the model's stop with the waypoints' desired speed: the crawl's 0.16 m/s still pulls away
+    fresh = WaypointController(1)  # no PID history: its derivative would see the 1 m/s error drop
+    _, throttle, brake = fresh(rows_[:1], speed[:1], path[:1], crawl[:1], None, np.array([False]))
+    assert brake[0] == 0.0 and throttle[0] > 0.0
+    with pytest.raises(ValueError, match="stop decision"):
         ctl(rows_, speed, path, crawl, np.array([1.2, 5.0]), None)
 
 
@@ -346,6 +350,8 @@ def test_ablations_ignore_partner_requests_or_feed_the_own_occupancy(checkpoints
     assert np.array_equal(agent.rows(obs)[0]["merged_bev"], occupancy_to_rgb(own)[0])
     with pytest.raises(ValueError, match="bev must be"):
         V2VVLAAgent(checkpoint=checkpoints["coop"], bev="none")
+    with pytest.raises(ValueError, match="desired_speed must be"):
+        V2VVLAAgent(checkpoint=checkpoints["coop"], desired_speed="model")
 
 
 @pytest.mark.parametrize(

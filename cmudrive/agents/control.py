@@ -120,21 +120,20 @@ class WaypointController:
         stop: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(steer, throttle, brake), each (n,), for CAVs ``rows`` at ``speed`` (n,) [m/s] with predicted
-        ``path`` (n, P, 2) and ``speed_waypoints`` (n, 10, 2) [m]. A model that predicts its go/stop and
-        target speed directly passes ``stop`` (n,) bool and ``target_speed`` (n,) [m/s]: they replace the
-        brake rule and the desired speed read from the speed waypoints."""
+        ``path`` (n, P, 2) and ``speed_waypoints`` (n, 10, 2) [m]. A model that predicts its go/stop
+        passes ``stop`` (n,) bool: it replaces the brake rule; one that predicts its target speed passes
+        ``target_speed`` (n,) [m/s] too: it replaces the desired speed read from the speed waypoints."""
         target = point_along(path, lookahead_distance(speed))
         zeros = np.zeros(len(rows))
         steer = np.clip(
             self.steer_pid(rows, heading_error(np.zeros((len(rows), 2)), zeros, target)), -1.0, 1.0
         )
-        if (target_speed is None) != (stop is None):
-            raise ValueError("pass target_speed and stop together, or neither")
-        if target_speed is not None and stop is not None:
-            desired, brake = np.asarray(target_speed, np.float64), np.asarray(stop, bool)
-        else:
-            desired = desired_speed(speed_waypoints)
-            brake = brakes(speed, desired)
+        if target_speed is not None and stop is None:
+            raise ValueError("a target speed comes with the model's stop decision")
+        desired = (
+            desired_speed(speed_waypoints) if target_speed is None else np.asarray(target_speed, np.float64)
+        )
+        brake = brakes(speed, desired) if stop is None else np.asarray(stop, bool)
         error = np.clip(desired - speed, 0.0, MAX_SPEED_ERROR)
         throttle = np.where(brake, 0.0, np.clip(self.speed_pid(rows, error), 0.0, 1.0))
         # creep: a CAV that has stood for CREEP_AFTER ticks rolls for CREEP_TICKS

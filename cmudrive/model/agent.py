@@ -96,6 +96,7 @@ class V2VVLAAgent(Agent):
         partner_requests: bool = True,
         bev: str = "merged",
         camera_jpeg: bool = True,
+        desired_speed: str = "query",
     ) -> None:
         """``checkpoint``: a ``V2VVLA.save_pretrained`` directory (default: the committed one);
         ``max_new_tokens``: cap on generated answer tokens (default: the model's ``max_answer_tokens``).
@@ -103,11 +104,17 @@ class V2VVLAAgent(Agent):
         name (every CAV keeps the default partner, the closest CAV in front); ``bev="own"`` gives it the
         CAV's own occupancy instead of the merged one (no partner information in the image).
         ``camera_jpeg=False`` feeds the raw camera render instead of the dataset's JPEG round trip
-        (which training saw; ~0.3 ms per CAV and tick, docs/model.md, "Row contract")."""
+        (which training saw; ~0.3 ms per CAV and tick, docs/model.md, "Row contract").
+        ``desired_speed``, for a model with a speed query (whose stop probability always decides go/stop):
+        ``"query"`` drives toward its predicted target speed, ``"waypoints"`` toward the speed SimLingo's
+        controller reads from its speed waypoints (docs/model.md, "Go/stop")."""
         if language_every < 1:
             raise ValueError(f"language_every must be >= 1 tick, got {language_every}")
         if bev not in ("merged", "own"):
             raise ValueError(f"bev must be 'merged' or 'own', got {bev!r}")
+        if desired_speed not in ("query", "waypoints"):
+            raise ValueError(f"desired_speed must be 'query' or 'waypoints', got {desired_speed!r}")
+        self.desired_speed = desired_speed
         self.partner_requests = partner_requests
         self.bev = bev
         self.camera_jpeg = camera_jpeg
@@ -176,7 +183,8 @@ class V2VVLAAgent(Agent):
         speed_wp = pred.speed_waypoints.float().cpu().numpy().astype(np.float64)  # (n, 10, 2)
         target_speed = stop = None
         if pred.target_speed is not None and pred.stop_prob is not None:  # go/stop from the speed query
-            target_speed = pred.target_speed.float().cpu().numpy().astype(np.float64)
+            if self.desired_speed == "query":
+                target_speed = pred.target_speed.float().cpu().numpy().astype(np.float64)
             stop = pred.stop_prob.float().cpu().numpy() > STOP_PROBABILITY
         steer, throttle, brake = self.controller(
             idx, np.asarray(obs.speed, np.float64), path, speed_wp, target_speed, stop
