@@ -162,16 +162,21 @@ def add_lora(config: ModelConfig, backbone: InternVLForConditionalGeneration) ->
 
 
 # ---- 2. driving heads -------------------------------------------------------------------------------
+def relu_mlp(in_size: int, hidden: tuple[int, ...], out_size: int) -> nn.Sequential:
+    """in -> hidden[0] -> ... -> out, ReLU between the linear layers."""
+    sizes = [in_size, *hidden]
+    layers: list[nn.Module] = []
+    for a, b in itertools.pairwise(sizes):
+        layers += [nn.Linear(a, b), nn.ReLU()]
+    return nn.Sequential(*layers, nn.Linear(sizes[-1], out_size))
+
+
 class TargetPointEncoder(nn.Module):
     """MLP (x, y) -> LLM embedding, 2 -> hidden[0] -> ... -> H with ReLU (SimLingo: 2 -> 256 -> 512 -> H)."""
 
     def __init__(self, hidden: tuple[int, ...], out_size: int, scale: float) -> None:
         super().__init__()
-        sizes = [2, *hidden]
-        layers: list[nn.Module] = []
-        for a, b in itertools.pairwise(sizes):
-            layers += [nn.Linear(a, b), nn.ReLU()]
-        self.mlp = nn.Sequential(*layers, nn.Linear(sizes[-1], out_size))
+        self.mlp = relu_mlp(2, hidden, out_size)
         self.scale = scale  # [m]
 
     def forward(self, points: torch.Tensor) -> torch.Tensor:
@@ -184,11 +189,7 @@ class CavPoseEncoder(nn.Module):
 
     def __init__(self, hidden: tuple[int, ...], out_size: int, scale: float) -> None:
         super().__init__()
-        sizes = [4, *hidden]
-        layers: list[nn.Module] = []
-        for a, b in itertools.pairwise(sizes):
-            layers += [nn.Linear(a, b), nn.ReLU()]
-        self.mlp = nn.Sequential(*layers, nn.Linear(sizes[-1], out_size))
+        self.mlp = relu_mlp(4, hidden, out_size)
         self.scale = scale  # [m]
 
     def forward(self, poses: torch.Tensor) -> torch.Tensor:
