@@ -17,7 +17,8 @@ Output folder ``OUT``::
 
 Data: ``datasets.load_dataset("parquet", data_dir=DIR)``; whole routes are held out for validation
 (``val_fraction`` of the route ids, drawn with the seed), never single samples of a route that also
-trains. Images are decoded per row when a row is read, in the loader's workers.
+trains. Rows are read a batch at a time and their images decoded then, in the loader's workers when
+there are any; ``--bucket-power`` draws each epoch's rows by situation (:class:`BucketSampler`).
 """
 
 from __future__ import annotations
