@@ -23,12 +23,28 @@ needs_transformers = pytest.mark.skipif(
 
 
 def test_named_configs_and_overrides() -> None:
-    assert set(NAMED_CONFIGS) == {"tiny", "small"}
+    assert set(NAMED_CONFIGS) == {"tiny", "tiny-v1", "small"}
     tiny = get_config("tiny")
     assert tiny.cooperative and tiny.n_images == 3
     baseline = get_config("tiny", cooperative=False)
     assert baseline.n_images == 2 and baseline.text == tiny.text
     assert get_config("tiny", text={"num_layers": 2}).text.num_layers == 2  # type: ignore[union-attr]
+
+
+def test_tiny_v1_is_the_configuration_the_committed_checkpoints_were_saved_with() -> None:
+    """Retraining with --config tiny-v1 builds the committed pairs' architecture and inputs."""
+    import json
+    from pathlib import Path
+
+    from cmudrive.model.config import ModelConfig
+
+    models = Path(__file__).resolve().parents[1] / "cmudrive" / "assets" / "models"
+    for name in ("v2v-vla-tiny", "v2v-vla-tiny-no-speed", "v2v-vla-baseline-tiny-no-speed"):
+        saved = ModelConfig.from_dict(json.loads((models / name / "vla_config.json").read_text())["config"])
+        rebuilt = get_config(
+            "tiny-v1", cooperative=saved.cooperative, speed_in_prompt=saved.speed_in_prompt
+        ).replace(name=saved.name)
+        assert rebuilt == saved, name
 
 
 def test_unknown_keys_are_rejected() -> None:
