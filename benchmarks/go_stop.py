@@ -28,7 +28,7 @@ import numpy as np
 import torch
 from ablation import held_out_rows
 
-from cmudrive.agents.control import STOPPED_SPEED, brakes, desired_speed
+from cmudrive.agents.control import STOPPED_SPEED, brakes, desired_speed, expert_stops
 from cmudrive.model import V2VVLA
 
 SITUATIONS = (
@@ -39,31 +39,29 @@ SITUATIONS = (
 )
 
 
-def situations(speed: np.ndarray, expert_stops: np.ndarray) -> dict[str, np.ndarray]:
+def situations(speed: np.ndarray, expert: np.ndarray) -> dict[str, np.ndarray]:
     """Row masks of the four situations."""
     standing = speed < STOPPED_SPEED
     return dict(
         zip(
             SITUATIONS,
             (
-                standing & ~expert_stops,
-                standing & expert_stops,
-                ~standing & ~expert_stops,
-                ~standing & expert_stops,
+                standing & ~expert,
+                standing & expert,
+                ~standing & ~expert,
+                ~standing & expert,
             ),
             strict=True,
         )
     )
 
 
-def decision_table(
-    speed: np.ndarray, expert_stops: np.ndarray, stops: np.ndarray
-) -> dict[str, tuple[float, int]]:
+def decision_table(speed: np.ndarray, expert: np.ndarray, stops: np.ndarray) -> dict[str, tuple[float, int]]:
     """Agreement of the decisions ``stops`` (N,) bool with the expert's, per situation and over all rows:
     name -> (share of the rows where they agree, number of rows)."""
-    masks = {**situations(speed, expert_stops), "all rows": np.ones(len(speed), bool)}
+    masks = {**situations(speed, expert), "all rows": np.ones(len(speed), bool)}
     return {
-        name: (float(np.mean(stops[m] == expert_stops[m])) if m.any() else float("nan"), int(m.sum()))
+        name: (float(np.mean(stops[m] == expert[m])) if m.any() else float("nan"), int(m.sum()))
         for name, m in masks.items()
     }
 
@@ -102,19 +100,19 @@ def main() -> None:
     ]
     _, rows, _ = held_out_rows(args.data, args.rows)
     speed = np.array([float(r["speed"]) for r in rows])
-    expert_stops = brakes(speed, np.array([float(r["target_speed"]) for r in rows]))
+    expert = expert_stops(speed, np.array([float(r["target_speed"]) for r in rows]))
     expert_wp = np.stack([np.asarray(r["speed_waypoints"], np.float64) for r in rows])
     tables = {
         "the expert's speed waypoints, SimLingo's rule": decision_table(
-            speed, expert_stops, brakes(speed, desired_speed(expert_wp))
+            speed, expert, brakes(speed, desired_speed(expert_wp))
         )
     }
     for path in checkpoints:
         model = V2VVLA.from_pretrained(path).eval()
         rule, head = model_stops(model, rows, speed)
         if head is not None:
-            tables[f"{path}, stop head (what the agent uses)"] = decision_table(speed, expert_stops, head)
-        tables[f"{path}, its speed waypoints, SimLingo's rule"] = decision_table(speed, expert_stops, rule)
+            tables[f"{path}, stop head (what the agent uses)"] = decision_table(speed, expert, head)
+        tables[f"{path}, its speed waypoints, SimLingo's rule"] = decision_table(speed, expert, rule)
     counts = next(iter(tables.values()))
     print(f"{len(rows)} held-out rows; share of rows where the decision is the expert's:")
     print("| decisions of | " + " | ".join(f"{n} ({c[1]})" for n, c in counts.items()) + " |")

@@ -81,6 +81,13 @@ def brakes(speed: np.ndarray, desired: np.ndarray) -> np.ndarray:
     return (desired < BRAKE_SPEED) | (speed > OVERSPEED * desired)
 
 
+def expert_stops(speed: np.ndarray, target_speed: np.ndarray) -> np.ndarray:
+    """(n,) bool: the expert's go/stop decision, the label of a model's stop head and the reference of
+    ``benchmarks/go_stop.py``: SimLingo's brake rule (:func:`brakes`) for the expert's target speed [m/s]
+    (where its speed controller means to be 0.5 s later) at ``speed`` [m/s]."""
+    return brakes(np.asarray(speed, np.float64), np.asarray(target_speed, np.float64))
+
+
 def point_along(path: np.ndarray, distance: np.ndarray) -> np.ndarray:
     """(n, 2) the point ``distance`` (n,) [m] along each polyline that starts at the origin and runs through
     ``path`` (n, P, 2): the look-ahead point of SimLingo's path resampled every 0.1 m (its last point when the

@@ -6,7 +6,7 @@ A row has the dataset's columns: ``camera`` (PIL RGB or (H, W, 3) uint8, 256 x 1
 ``path`` (20, 2) [m], ``speed_waypoints`` (10, 2) [m], ``commentary`` (str), ``communication`` (str, ""
 for none), ``partner_label`` (int, -1 for none) and, for a model with ``speed_query``, ``target_speed``
 [m/s] (the expert's) and optionally ``stop`` (bool; default: SimLingo's brake rule at the row's speed for
-that target, :func:`cmudrive.agents.control.brakes`). Other keys are ignored.
+that target, :func:`cmudrive.agents.control.expert_stops`). Other keys are ignored.
 
 Token layout of one row (left-padded, so that every row ends at the same position and the model can
 append its waypoint queries after it)::
@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from PIL import Image
 
-from cmudrive.agents.control import brakes
+from cmudrive.agents.control import expert_stops
 from cmudrive.model.config import ModelConfig
 from cmudrive.model.tokenizer import (
     CAV_POINT,
@@ -330,7 +330,7 @@ def speed_labels(rows: Sequence[dict[str, Any]]) -> tuple[torch.Tensor, torch.Te
 
     target = np.array([float(r["target_speed"]) for r in rows], np.float32)
     speed = np.array([float(r["speed"]) if r["speed"] is not None else 0.0 for r in rows], np.float32)
-    stop = brakes(speed, target)
+    stop = expert_stops(speed, target)
     given = [i for i, r in enumerate(rows) if r.get("stop") is not None]
     stop[given] = [bool(rows[i]["stop"]) for i in given]
     return torch.from_numpy(target), torch.from_numpy(stop.astype(np.float32))

@@ -40,7 +40,7 @@ import torch
 from PIL import Image
 from torch.utils.data import DataLoader, Dataset, Sampler
 
-from cmudrive.agents.control import brakes
+from cmudrive.agents.control import expert_stops
 from cmudrive.model.augment import YawAugment, rotate_sample
 from cmudrive.model.config import ModelConfig, get_config
 from cmudrive.model.modeling import V2VVLA
@@ -199,7 +199,7 @@ def sampling_buckets(ds: Any) -> np.ndarray:
     # the rows of the selection, in its order (ds.data.table would be the whole underlying table)
     table = ds.select_columns(["speed", "target_speed", "reason", "path"]).with_format("arrow")[:]
     speed = table.column("speed").to_numpy()
-    stop = brakes(speed, table.column("target_speed").to_numpy())
+    stop = expert_stops(speed, table.column("target_speed").to_numpy())
     path = table.column("path").combine_chunks().flatten().flatten().to_numpy().reshape(len(speed), -1, 2)
     reason = np.asarray(table.column("reason").to_pylist(), dtype=object)
     standing = speed < STANDING_SPEED
@@ -348,7 +348,7 @@ class DrivingDataset(Dataset):
                 if np.random.default_rng([self.seed, self.epoch, i, 1]).random() < self.speed_dropout:
                     if row.get("target_speed") is not None:  # the stop label of the true speed
                         row["stop"] = bool(
-                            brakes(np.array([row["speed"]]), np.array([row["target_speed"]]))[0]
+                            expert_stops(np.array([row["speed"]]), np.array([row["target_speed"]]))[0]
                         )
                     row["speed"] = None
         return rows
