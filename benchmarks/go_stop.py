@@ -7,12 +7,13 @@ A waypoint model's waypoint errors say little about the one decision its closed-
 whether the controller brakes. **The expert's decision** is SimLingo's brake rule
 (:func:`cmudrive.agents.control.brakes`: a desired speed below 0.4 m/s, or one the CAV exceeds by more
 than 10 %) applied to the expert's own target speed (``target_speed``: where its speed controller means
-to be in 0.5 s; it holds the brake below 0.3 m/s). **A model's decision**: its stop probability above 0.5
-for a model with a speed query (``speed_query``; what its agent uses), and the same rule applied to the
-desired speed that SimLingo's controller reads from its speed waypoints (0.25 s to 0.75 s; what the agent
-of a model without a speed query uses, shown for both). The first line of the table
-applies that waypoint rule to the expert's own speed waypoints: what a perfect copy of the expert's
-waypoints would decide.
+to be in 0.5 s; it holds the brake below 0.3 m/s). **A model's decision**, for a model with a speed query
+(``speed_query``; what its agent uses): its stop probability above 0.5, or the brake rule applied to the
+speed it predicts to drive at (learned from the expert's ``desired_speed``); and, for every model, the
+rule applied to the desired speed that SimLingo's controller reads from its speed waypoints (0.25 s to
+0.75 s; what the agent of a model without a speed query uses). The first lines of the table apply the
+rule to the expert's own speed waypoints and to its desired speed: what a perfect copy of either would
+decide.
 
 Rows are the validation routes of ``cmudrive train``'s default split (every k-th row up to ``--rows``),
 counted per situation: the CAV stands (below 0.1 m/s) and the expert drives off or stays; it moves and the
@@ -70,15 +71,17 @@ def model_stops(
     model: V2VVLA, rows: list[dict], speed: np.ndarray, batch: int = 64
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """(N,) bool brake decisions on ``rows`` (no language): SimLingo's rule on the model's speed waypoints,
-    and, for a model with a speed query, its stop probability above 0.5 (else None)."""
+    and, for a model with a speed query, the agent's decision (its stop probability above 0.5, or the
+    rule on its predicted speed; else None)."""
     rule, head = [], []
     with torch.no_grad():
         for i in range(0, len(rows), batch):
             pred = model.predict(rows[i : i + batch], max_new_tokens=0)
             wp = pred.speed_waypoints.float().numpy().astype(np.float64)
             rule.append(brakes(speed[i : i + batch], desired_speed(wp)))
-            if pred.stop_prob is not None:
-                head.append(pred.stop_prob.float().numpy() > 0.5)
+            if pred.stop_prob is not None and pred.target_speed is not None:
+                target = pred.target_speed.float().numpy().astype(np.float64)
+                head.append((pred.stop_prob.float().numpy() > 0.5) | brakes(speed[i : i + batch], target))
     return np.concatenate(rule), (np.concatenate(head) if head else None)
 
 
@@ -105,13 +108,18 @@ def main() -> None:
     tables = {
         "the expert's speed waypoints, SimLingo's rule": decision_table(
             speed, expert, brakes(speed, desired_speed(expert_wp))
-        )
+        ),
+        "the expert's desired speed, SimLingo's rule": decision_table(
+            speed, expert, brakes(speed, np.array([float(r["desired_speed"]) for r in rows]))
+        ),
     }
     for path in checkpoints:
         model = V2VVLA.from_pretrained(path).eval()
         rule, head = model_stops(model, rows, speed)
         if head is not None:
-            tables[f"{path}, stop head (what the agent uses)"] = decision_table(speed, expert, head)
+            tables[f"{path}, stop head or rule on its speed (what the agent uses)"] = decision_table(
+                speed, expert, head
+            )
         tables[f"{path}, its speed waypoints, SimLingo's rule"] = decision_table(speed, expert, rule)
     counts = next(iter(tables.values()))
     print(f"{len(rows)} held-out rows; share of rows where the decision is the expert's:")

@@ -22,6 +22,7 @@ def make_row(i: int, seed: int = 0) -> dict[str, Any]:
         "path": forward,
         "speed_waypoints": np.stack([np.arange(1, 11) * (0.5 + 0.2 * i), np.zeros(10)], axis=1),
         "target_speed": 0.0 if i % 2 else 2.5 + i,  # [m/s] the expert stops on odd rows
+        "desired_speed": 0.0 if i % 2 else 8.0 + i,  # [m/s] what its rules allow: the speed query's target
         "commentary": ["Follow the route. Accelerate.", "Turn left. Stop now because of the red light."][
             i % 2
         ],

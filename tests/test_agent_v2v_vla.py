@@ -89,6 +89,9 @@ def test_a_models_own_go_stop_and_target_speed_replace_the_waypoint_rule() -> No
     fresh = WaypointController(1)  # no PID history: its derivative would see the 1 m/s error drop
     _, throttle, brake = fresh(rows_[:1], speed[:1], path[:1], crawl[:1], None, np.array([False]))
     assert brake[0] == 0.0 and throttle[0] > 0.0
+    # go, but 10 % above the speed the model predicts to drive at: the brake rule brakes
+    _, throttle, brake = ctl(rows_, speed, path, crawl, np.array([1.2, 2.5]), np.array([False, False]))
+    assert brake.tolist() == [0.0, 1.0] and throttle[1] == 0.0
     with pytest.raises(ValueError, match="stop decision"):
         ctl(rows_, speed, path, crawl, np.array([1.2, 5.0]), None)
 

@@ -49,6 +49,7 @@ def decision(
         tick=0,
         cav_index=np.arange(n),
         target_speed=np.array(target_speed if target_speed is not None else snap.speed[cav_rows], float),
+        desired_speed=np.array(target_speed if target_speed is not None else snap.speed[cav_rows], float),
         accel=np.zeros(n),
         reason=np.array(reason if reason is not None else [Reason.NONE] * n, np.int8),
         object_row=rows,

@@ -91,6 +91,7 @@ def rows(n: int) -> dict[str, list]:
         "object_kind": ["", "", "PEDESTRIAN"][:n],
         "object_distance": [math.nan, 12.0, 7.5][:n],
         "target_speed": [8.0] * n,
+        "desired_speed": [8.3] * n,
         "commentary": ["Stay on the route. Keep the current speed."] * n,
         "communication": [
             "",

@@ -137,6 +137,61 @@ def test_stopped_car_ahead_is_followed_with_idm(downtown: RoadMap) -> None:
     assert accel[1] < 0.0 < accel[0] < 2.5
 
 
+def test_desired_speed_is_what_the_rules_allow_whatever_the_cav_speed(downtown: RoadMap) -> None:
+    """The speed-query label: with green the road's speed is allowed from standstill (where the
+    acceleration-limited target speed is 1.25 m/s); a red light 15 m ahead allows sqrt(2 x 2.5 m/s^2 x
+    (bumper gap - 6 m)) ~ 5.7 m/s, the same at 2 m/s and at 8 m/s (where the target speeds differ);
+    standing at the line, 0."""
+    m = downtown
+    lane = str(m.lane_ids[m.stop_lane[np.flatnonzero(m.stop_kind == StopKind.TRAFFIC_LIGHT)[0]]])
+    route, line = route_through(m, lane)
+    green = expert_for(m, [route])
+    _, obs = scene(route, line - 15.0, 0.0, tls=lights_all(m, "G"))
+    green.run_step(obs)
+    assert green.decision is not None
+    road = green.decision.desired_speed[0]
+    assert road > 7.0
+    assert green.decision.target_speed[0] == pytest.approx(1.25)  # 0.5 s at 2.5 m/s^2 from standstill
+    desired, target = [], []
+    for speed in (2.0, 8.0):
+        agent = expert_for(m, [route])
+        _, obs = scene(route, line - 15.0, speed, tls=lights_all(m, "r"))
+        agent.run_step(obs)
+        d = agent.decision
+        assert d is not None and d.reason[0] == Reason.RED_LIGHT
+        expected = np.sqrt(2.0 * 2.5 * (d.distance[0] - 6.0))
+        assert 5.0 < expected < road
+        assert d.desired_speed[0] == pytest.approx(expected, abs=0.01)
+        desired.append(d.desired_speed[0])
+        target.append(d.target_speed[0])
+    assert desired[0] == pytest.approx(desired[1])
+    assert target[0] < 3.5 and target[1] < 8.0 - 1.0  # the target speed follows the CAV's speed
+    agent = expert_for(m, [route])
+    _, obs = scene(route, line - 2.45 - 6.5, 0.0, tls=lights_all(m, "r"))
+    agent.run_step(obs)
+    assert agent.decision is not None and agent.decision.desired_speed[0] == 0.0
+
+
+def test_desired_speed_behind_a_moving_car_closes_to_its_speed(downtown: RoadMap) -> None:
+    """A car ahead at 4 m/s allows sqrt(v^2 + 2 x 2.5 m/s^2 x (bumper gap - 4 m - v x 0.25 s)): more than
+    its speed with a 10 m bumper gap, its speed once the gap is down to 5 m (whatever the CAV drives)."""
+    m = downtown
+    lane = str(m.lane_ids[m.stop_lane[np.flatnonzero(m.stop_kind == StopKind.TRAFFIC_LIGHT)[0]]])
+    route, line = route_through(m, lane, before=100.0)
+    at = line - 80.0
+    for ahead, low, high in ((15.0, 6.0, 7.0), (9.0, 4.0, 4.0)):
+        k = int(np.searchsorted(route.distance, at + ahead))
+        car = {"x": route.xy[k, 0], "y": route.xy[k, 1], "yaw": route.heading[k], "speed": 4.0}
+        agent = expert_for(m, [route])
+        _, obs = scene(route, at, 6.0, others=[car], tls=lights_all(m, "G"))
+        agent.run_step(obs)
+        d = agent.decision
+        assert d is not None and d.reason[0] == Reason.LEADING_VEHICLE
+        expected = np.sqrt(16.0 + 5.0 * max(d.distance[0] - 4.0 - 1.0, 0.0))
+        assert d.desired_speed[0] == pytest.approx(expected, abs=0.05)
+        assert low <= d.desired_speed[0] <= high + 1e-9
+
+
 def test_pedestrian_stepping_into_the_lane_stops_the_cav(downtown: RoadMap) -> None:
     m = downtown
     lane = str(m.lane_ids[m.stop_lane[np.flatnonzero(m.stop_kind == StopKind.TRAFFIC_LIGHT)[0]]])

@@ -55,8 +55,9 @@ def test_batch_shapes_and_left_padding(coop: VLAProcessor) -> None:
     assert batch.cav_poses is not None and np.allclose(
         batch.cav_poses.numpy(), [[12.0, -3.5, 0.1], [12.0, -3.5, 0.1], [-6.0, 1.0, 3.1], [12.0, -3.5, 0.1]]
     )  # row order, nearest first within a row
-    # speed labels: rows 0 and 2 go (target 2.5 + i m/s above their 2 + i m/s), row 1 stops (target 0)
-    assert batch.target_speed is not None and batch.target_speed.tolist() == [2.5, 0.0, 4.5]
+    # speed labels: the query learns the desired speed; rows 0 and 2 go (the expert's target speed 2.5 + i
+    # m/s above their 2 + i m/s), row 1 stops (target 0)
+    assert batch.target_speed is not None and batch.target_speed.tolist() == [8.0, 0.0, 10.0]
     assert batch.stop is not None and batch.stop.tolist() == [0.0, 1.0, 0.0]
     assert batch.answer_ids is not None and batch.labels is not None
     for i in range(b):  # answers apart, right-padded, each ending with its </s>

@@ -128,8 +128,10 @@ class WaypointController:
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(steer, throttle, brake), each (n,), for CAVs ``rows`` at ``speed`` (n,) [m/s] with predicted
         ``path`` (n, P, 2) and ``speed_waypoints`` (n, 10, 2) [m]. A model that predicts its go/stop
-        passes ``stop`` (n,) bool: it replaces the brake rule; one that predicts its target speed passes
-        ``target_speed`` (n,) [m/s] too: it replaces the desired speed read from the speed waypoints."""
+        passes ``stop`` (n,) bool: it replaces the brake rule; one that predicts the speed to drive at
+        passes ``target_speed`` (n,) [m/s] too: it replaces the desired speed read from the speed
+        waypoints, and the CAV also brakes where the brake rule says so for it (above it by 10 %, or it
+        below 0.4 m/s)."""
         target = point_along(path, lookahead_distance(speed))
         zeros = np.zeros(len(rows))
         steer = np.clip(
@@ -140,7 +142,9 @@ class WaypointController:
         desired = (
             desired_speed(speed_waypoints) if target_speed is None else np.asarray(target_speed, np.float64)
         )
-        brake = brakes(speed, desired) if stop is None else np.asarray(stop, bool)
+        brake = brakes(speed, desired)
+        if stop is not None:
+            brake = np.asarray(stop, bool) if target_speed is None else brake | np.asarray(stop, bool)
         error = np.clip(desired - speed, 0.0, MAX_SPEED_ERROR)
         throttle = np.where(brake, 0.0, np.clip(self.speed_pid(rows, error), 0.0, 1.0))
         # creep: a CAV that has stood for CREEP_AFTER ticks rolls for CREEP_TICKS

@@ -283,6 +283,7 @@ class CollectingAgent(Agent):
             dist = float(d.distance[a])
             b["object_distance"].append(dist if np.isfinite(dist) else float("nan"))
             b["target_speed"].append(float(d.target_speed[a]))
+            b["desired_speed"].append(float(d.desired_speed[a]))
             lang: Language = language[a]
             b["commentary"].append(lang.commentary)
             b["communication"].append(lang.communication)

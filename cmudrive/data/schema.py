@@ -57,6 +57,7 @@ LABELS = (
     "object_kind",
     "object_distance",
     "target_speed",
+    "desired_speed",
 )
 LANGUAGE = ("commentary", "communication", "partner_label", "route_action", "speed_action")
 COLUMNS = METADATA + INPUTS + LABELS + LANGUAGE
@@ -99,6 +100,7 @@ def features(occupancy: OccupancyConfig | None = None) -> datasets.Features:
         "object_kind": text,
         "object_distance": f32,
         "target_speed": f32,
+        "desired_speed": f32,
         "commentary": text,
         "communication": text,
         "partner_label": i32,

@@ -180,6 +180,13 @@ def load_shards(out: Path | str, columns: Iterable[str] | None = None) -> datase
         raise FileNotFoundError(f"{out}: no {SHARD_SUFFIX} shard")
     for path in paths:
         verify_shard(path)
+        if columns is not None:
+            missing = [c for c in columns if c not in pq.read_schema(path).names]
+            if missing:
+                raise ShardError(
+                    f"{path}: no column {', '.join(missing)}: the shard was written by an older cmudrive; "
+                    "collect the data again (cmudrive collect)"
+                )
     files = [str(p) for p in paths]
     ds = datasets.load_dataset("parquet", data_files=files, split="train")
     if columns is not None:

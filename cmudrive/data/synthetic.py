@@ -77,6 +77,7 @@ def synthetic_row(route_id: str, index: int, rng: np.random.Generator, num_cavs:
         "object_kind": "",
         "object_distance": float("nan"),
         "target_speed": speed,
+        "desired_speed": speed,
         "commentary": _COMMENTARY[int(rng.integers(len(_COMMENTARY)))],
         "communication": f"CAV {partner_label} can see the pedestrian, which is hidden from our camera."
         if partner_label >= 0

@@ -248,7 +248,9 @@ class VLAPrediction:
     text: list[str]  # generated commentary (+ communication sentence)
     partner: list[int]  # CAV named in the communication sentence, -1 for none (always -1 for the baseline)
     answer_ids: list[list[int]]  # the generated answer tokens, </s> included ([] when none was asked)
-    target_speed: torch.Tensor | None = None  # (B,) [m/s] where to be in 0.5 s (speed_query), else None
+    target_speed: torch.Tensor | None = (
+        None  # (B,) [m/s] to drive at (speed_query: the desired_speed), else None
+    )
     stop_prob: torch.Tensor | None = None  # (B,) probability that the expert would brake (speed_query)
 
 

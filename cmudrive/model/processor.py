@@ -323,14 +323,16 @@ class VLAProcessor:
 
 
 def speed_labels(rows: Sequence[dict[str, Any]]) -> tuple[torch.Tensor, torch.Tensor]:
-    """(B,) target speeds [m/s] and (B,) stop labels (1.0 / 0.0) of training rows: SimLingo's brake rule
-    at the row's speed for the expert's target speed, or the row's own ``stop`` where it has one (a row
-    whose prompt dropped its speed keeps the label of its true speed)."""
+    """(B,) speed-query targets [m/s] and (B,) stop labels (1.0 / 0.0) of training rows. The target is
+    the expert's ``desired_speed`` (what its rules allow, not its acceleration-limited ``target_speed``:
+    docs/model.md, "Go/stop"); the stop label is the expert's go/stop (``expert_stops`` of the row's
+    speed and ``target_speed``), or the row's own ``stop`` where it has one (a row whose prompt dropped
+    its speed keeps the label of its true speed)."""
     import torch
 
-    target = np.array([float(r["target_speed"]) for r in rows], np.float32)
+    target = np.array([float(r["desired_speed"]) for r in rows], np.float32)
     speed = np.array([float(r["speed"]) if r["speed"] is not None else 0.0 for r in rows], np.float32)
-    stop = expert_stops(speed, target)
+    stop = expert_stops(speed, np.array([float(r["target_speed"]) for r in rows], np.float32))
     given = [i for i, r in enumerate(rows) if r.get("stop") is not None]
     stop[given] = [bool(rows[i]["stop"]) for i in given]
     return torch.from_numpy(target), torch.from_numpy(stop.astype(np.float32))

@@ -38,8 +38,16 @@ TARGET_MIN_AHEAD = 7.5  # [m] a target point closer than this along the plan cou
 TARGET_SEARCH = 3  # [segments] of the sparse plan searched ahead of the last one for the CAV's progress
 
 INPUT_COLUMNS = ("camera", "merged_bev", "speed", "target_points", "other_cavs")  # what the model reads
-# targets; target_speed is the speed query's (the expert's target speed [m/s])
-LABEL_COLUMNS = ("path", "speed_waypoints", "target_speed", "commentary", "communication", "partner_label")
+# targets; desired_speed is the speed query's target, target_speed (with the speed) its stop label
+LABEL_COLUMNS = (
+    "path",
+    "speed_waypoints",
+    "target_speed",
+    "desired_speed",
+    "commentary",
+    "communication",
+    "partner_label",
+)
 # what training loads: route_id for the split, the grid the camera-rotation augmentation re-draws the
 # merged BEV from (cmudrive.model.augment), and the expert's reason for bucketed sampling
 TRAIN_COLUMNS = ("route_id", *INPUT_COLUMNS, "merged_occupancy", *LABEL_COLUMNS, "reason")

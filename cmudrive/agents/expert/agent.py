@@ -41,7 +41,7 @@ from cmudrive.agents.corridor import first_in_corridor
 from cmudrive.agents.expert.detour import Detour, DetourPlanner, DetourReason
 from cmudrive.agents.expert.forecast import Forecaster
 from cmudrive.agents.expert.plan import EntryKind, RoutePlans, build_plans
-from cmudrive.agents.expert.rules import GAPS, IdmConfig, Reason, idm, reason_of_kind
+from cmudrive.agents.expert.rules import GAPS, IdmConfig, Reason, allowed_speed, idm, reason_of_kind
 from cmudrive.maps import RoadMap
 from cmudrive.sim.dynamics import Controls, VehicleParams
 from cmudrive.sim.snapshot import ActorKind, Role, Snapshot
@@ -88,6 +88,9 @@ class ExpertDecision:
     tick: int
     cav_index: np.ndarray  # (n,)
     target_speed: np.ndarray  # (n,) [m/s] the speed it aims at over the next ~0.5 s
+    # (n,) [m/s] the lowest speed its rules allow now (road, objects, stop lines, forecast; rules.
+    # allowed_speed), before its own acceleration limits: what a learned model's speed query predicts
+    desired_speed: np.ndarray
     accel: np.ndarray  # (n,) [m/s^2] commanded acceleration
     reason: np.ndarray  # (n,) int8 Reason that set it
     object_row: np.ndarray  # (n,) snapshot row of the object behind the reason, -1 none
@@ -168,13 +171,21 @@ class ExpertAgent(Agent):
         accel = np.clip((cruise - v) / c.speed_time_constant, -c.idm.comfort_decel, c.idm.max_accel)
         reason = np.where(cruise < allowed[:, 0] - 0.5, Reason.ROAD, Reason.NONE).astype(np.int8)
         reason = np.where(v > cruise + 0.5, Reason.ROAD, reason).astype(np.int8)
+        desired = cruise.copy()
         n = len(i)
         obj_row = np.full(n, -1, np.int64)
         obj_dist = np.full(n, np.inf)
         unblocking = obs.tick < self.unblock_until[i]
 
-        def take(term: np.ndarray, why: int | np.ndarray, row: np.ndarray | None, dist: np.ndarray) -> None:
+        def take(
+            term: np.ndarray,
+            why: int | np.ndarray,
+            row: np.ndarray | None,
+            dist: np.ndarray,
+            allow: np.ndarray,
+        ) -> None:
             nonlocal accel, reason
+            np.minimum(desired, allow, out=desired)
             better = term < accel
             accel = np.where(better, term, accel)
             reason = np.where(better, why, reason).astype(np.int8)
@@ -210,17 +221,19 @@ class ExpertAgent(Agent):
             why = reason_of_kind(snap.kind[r], snap.role[r] == Role.PROP)
             v_lead = np.where(why == Reason.PEDESTRIAN, 0.0, v_lead)  # walkers are treated as standing
             term = np.full(n, np.inf)
+            allow = np.full(n, np.inf)
             whys = np.zeros(n, np.int8)
             for w in np.unique(why):
                 sel = why == w
                 g = GAPS[Reason(int(w))]
                 term[k[sel]] = idm(v[k[sel]], cruise[k[sel]], gap[sel], v_lead[sel], g.s0, g.headway, c.idm)
+                allow[k[sel]] = allowed_speed(gap[sel], v_lead[sel], g.s0, g.headway, c.approach_decel)
             whys[k] = why
             rows_full = np.full(n, -1, np.int64)
             rows_full[k] = r
             dist_full = np.full(n, np.inf)
             dist_full[k] = gap
-            take(term, whys, rows_full, dist_full)
+            take(term, whys, rows_full, dist_full, allow)
 
         # 2. waiting for a gap before going around an obstacle: stop the centre at the detour's stop point
         if det.waiting.any():
@@ -228,7 +241,15 @@ class ExpertAgent(Agent):
             gap = det.stop_distance + g.s0
             term = np.where(det.waiting, idm(v, cruise, gap, np.zeros(n), g.s0, g.headway, c.idm), np.inf)
             term = np.where(det.waiting & (det.stop_distance < c.stop_reached), -c.idm.max_accel, term)
-            take(term, np.full(n, Reason.DETOUR_WAIT, np.int8), None, det.stop_distance)
+            allow = allowed_speed(gap, np.zeros(n), g.s0, 0.0, c.approach_decel)
+            allow = np.where(det.stop_distance < c.stop_reached, 0.0, allow)
+            take(
+                term,
+                np.full(n, Reason.DETOUR_WAIT, np.int8),
+                None,
+                det.stop_distance,
+                np.where(det.waiting, allow, np.inf),
+            )
 
         # 3. junction entries ahead: lights, stop signs, give way
         self._junction_terms(snap, obs.tick, i, v, ego_s, half_len, cruise, unblocking, take)
@@ -247,7 +268,17 @@ class ExpertAgent(Agent):
 
         controls = self._controls(obs, pos, v, path, frac, accel)
         self._record(
-            snap, obs.tick, i, v, accel, reason, obj_row, obj_dist, path, _detour_record(snap, rows, det)
+            snap,
+            obs.tick,
+            i,
+            v,
+            accel,
+            desired,
+            reason,
+            obj_row,
+            obj_dist,
+            path,
+            _detour_record(snap, rows, det),
         )
         return controls
 
@@ -300,6 +331,7 @@ class ExpertAgent(Agent):
         upcoming = np.where(p.entry_kind[i] == EntryKind.LIGHT, rear_all > 0.0, gap_all > -0.5)
         hard = self.params.max_brake * self.friction
         terms = np.full(n, np.inf)
+        allows = np.full(n, np.inf)
         whys = np.zeros(n, np.int8)
         dists = np.full(n, np.inf)
         for a in range(n):
@@ -339,10 +371,12 @@ class ExpertAgent(Agent):
                     why = Reason.YIELD
                 if why != Reason.NONE:
                     g = GAPS[why]
+                    allow = 0.0
                     if gap <= g.s0 + c.stop_reached:  # at the line: stop there, as hard as that takes
                         needed = v[a] ** 2 / (2.0 * max(line_gap, 0.1))
                         term = -max(needed, c.idm.comfort_decel) if v[a] > c.hold_speed else -c.idm.max_accel
                     else:
+                        allow = float(np.sqrt(2.0 * c.approach_decel * (gap - g.s0)))
                         term = float(
                             idm(
                                 v[a : a + 1],
@@ -354,9 +388,9 @@ class ExpertAgent(Agent):
                                 c.idm,
                             )[0]
                         )
-                    terms[a], whys[a], dists[a] = term, why, gap
+                    terms[a], whys[a], dists[a], allows[a] = term, why, gap, allow
                     break  # the nearest entry that asks for a stop decides
-        take(terms, whys, None, dists)  # type: ignore[operator]
+        take(terms, whys, None, dists, allows)  # type: ignore[operator]
 
     def _forecast_term(
         self,
@@ -401,7 +435,10 @@ class ExpertAgent(Agent):
         gap = np.full(n, np.inf)
         hit = row >= 0
         gap[hit] = np.hypot(snap.x[row[hit]] - snap.x[rows[hit]], snap.y[row[hit]] - snap.y[rows[hit]])
-        take(term, np.full(n, Reason.FORECAST, np.int8), row, gap)  # type: ignore[operator]
+        # allowed: the speed that still stops within the distance braking to rest by the conflict takes
+        allow = np.sqrt(c.approach_decel * v * np.where(hit, np.maximum(when, 0.0), 0.0))
+        allow = np.where(hit, np.where(v < c.hold_speed, 0.0, allow), np.inf)
+        take(term, np.full(n, Reason.FORECAST, np.int8), row, gap, allow)  # type: ignore[operator]
 
     def _must_yield(self, snap: Snapshot, link: int, gap: float, v: float) -> bool:
         """A vehicle with priority over ``link`` is in the junction on a conflicting path, or will reach it
@@ -459,6 +496,7 @@ class ExpertAgent(Agent):
         i: np.ndarray,
         v: np.ndarray,
         accel: np.ndarray,
+        desired: np.ndarray,
         reason: np.ndarray,
         obj_row: np.ndarray,
         obj_dist: np.ndarray,
@@ -474,6 +512,7 @@ class ExpertAgent(Agent):
             tick=tick,
             cav_index=i.copy(),
             target_speed=np.maximum(v + accel * self.config.speed_time_constant, 0.0),
+            desired_speed=desired,
             accel=accel,
             reason=reason,
             object_row=obj_row,

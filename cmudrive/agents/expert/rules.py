@@ -83,6 +83,19 @@ def idm(
     return c.max_accel * (free - (s_star / np.maximum(gap, 0.1)) ** 2)
 
 
+def allowed_speed(
+    gap: np.ndarray, v_object: np.ndarray, s0: float, headway: float, decel: float
+) -> np.ndarray:
+    """(n,) [m/s] the speed a rule allows now, whatever the CAV's own speed: the highest speed from which
+    braking at ``decel`` [m/s^2] brings the CAV down to the object's speed ``v_object`` [m/s] (0 for
+    stop lines) by the time the ``gap`` [m] has shrunk to ``s0 + v_object * headway``. It is the
+    target of a learned model's speed query (``ExpertDecision.desired_speed``): unlike the expert's
+    acceleration-limited ``target_speed``, it does not follow the CAV's speed, so a model that reads its
+    speed cannot learn it by copying the speed (docs/model.md, "Go/stop")."""
+    room = np.maximum(gap - s0 - v_object * headway, 0.0)
+    return np.sqrt(v_object**2 + 2.0 * decel * room)
+
+
 def reason_of_kind(kind: np.ndarray, is_prop: np.ndarray) -> np.ndarray:
     """(m,) Reason for corridor objects of ``kind`` (ActorKind); ``is_prop`` (m,) bool: static props."""
     out = np.full(len(kind), Reason.LEADING_VEHICLE, np.int8)
