@@ -185,7 +185,7 @@ def load_shards(out: Path | str, columns: Iterable[str] | None = None) -> datase
             if missing:
                 raise ShardError(
                     f"{path}: no column {', '.join(missing)}: the shard was written by an older cmudrive; "
-                    "collect the data again (cmudrive collect)"
+                    "collect the data again (cmudrive data collect)"
                 )
     files = [str(p) for p in paths]
     ds = datasets.load_dataset("parquet", data_files=files, split="train")
