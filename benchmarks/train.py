@@ -33,6 +33,7 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
     parser.add_argument("--workers", type=int, default=0, help="DataLoader workers")
     parser.add_argument("--baseline", action="store_true")
+    parser.add_argument("--compile", action="store_true", help="torch.compile the language model")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     with tempfile.TemporaryDirectory() as tmp:
@@ -52,6 +53,7 @@ def main() -> None:
             log_every=1,
             val_fraction=0.0,
             num_workers=args.workers,
+            compile=args.compile,
         )
         load = os.getloadavg()
         train(config, progress=False)
@@ -63,7 +65,8 @@ def main() -> None:
     print(
         f"{args.config}{' baseline' if args.baseline else ''}: {len(steps)} steps of {args.batch_size} rows, "
         f"median {ms[len(ms) // 2]:.0f} ms per step (min {ms[0]:.0f}, max {ms[-1]:.0f}); "
-        f"{args.threads} torch threads, {args.workers} loader workers; load average before "
+        f"{args.threads} torch threads, {args.workers} loader workers"
+        f"{', compiled' if args.compile else ''}; load average before "
         f"{load[0]:.2f}, after {os.getloadavg()[0]:.2f}"
     )
     print(f"samples_per_s={rate:.2f}")

@@ -379,3 +379,15 @@ def test_resume_refuses_pickled_optimizer_state_with_a_message(data: Path, tmp_p
     (checkpoint / "state.json").write_text('{"step": "two"}')
     with pytest.raises(ValueError, match=r"step_000002/state\.json: step, epoch and batch_in_epoch must be"):
         train(config(data, out, max_steps=2, batch_size=2), resume=True, progress=False)
+
+
+@pytest.mark.slow
+def test_a_compiled_run_trains_the_same_weights_under_the_same_names(data: Path, tmp_path: Path) -> None:
+    """--compile compiles the language model in place: the saved weights keep their names (a compiled
+    checkpoint loads like any other) and 3 steps end within float tolerance of the eager run's."""
+    train(config(data, tmp_path / "eager", max_steps=3, save_every=3), progress=False)
+    train(config(data, tmp_path / "compiled", max_steps=3, save_every=3, compile=True), progress=False)
+    eager = load_file(str(tmp_path / "eager" / "model" / "model.safetensors"))
+    compiled = load_file(str(tmp_path / "compiled" / "model" / "model.safetensors"))
+    assert set(compiled) == set(eager)
+    assert max(float((eager[k] - compiled[k]).abs().max()) for k in eager) < 1e-4

@@ -97,6 +97,9 @@ class TrainConfig:
     seed: int = 0
     num_workers: int = 0  # DataLoader worker processes (image decoding, augmentation, tokenising)
     mixed_precision: str = "auto"  # auto (bf16 or fp16 on GPUs, none on CPU), no, fp16, bf16
+    # torch.compile the language model in place (dynamic shapes: prompts vary in length); the weights'
+    # names and the checkpoints stay the same (docs/model.md, "Throughput")
+    compile: bool = False
     augment: YawAugment = field(default_factory=YawAugment)
 
     def __post_init__(self) -> None:
@@ -419,6 +422,8 @@ class Trainer:
         self.accelerator = acc = Accelerator(mixed_precision=mixed_precision(config.mixed_precision))
         set_seed(config.seed)
         model = V2VVLA.from_config(config.model_config())
+        if config.compile:
+            model.backbone.model.language_model.compile(dynamic=True)
         self.train_set = DrivingDataset(train_rows, config.augment, config.seed, config.speed_dropout)
         self.sampler: EpochSampler | BucketSampler = (
             EpochSampler(len(self.train_set), config.seed)
@@ -515,7 +520,7 @@ class Trainer:
             self.tick = time.perf_counter()  # checkpoints and validation are not training speed
 
 
-RESUME_MAY_CHANGE = ("num_workers", "log_every")  # settings that do not change what is trained
+RESUME_MAY_CHANGE = ("num_workers", "log_every", "compile")  # settings that do not change what is trained
 
 
 def _load_checkpoint(accelerator: Any, path: Path) -> TrainState:
