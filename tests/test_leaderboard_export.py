@@ -1,5 +1,5 @@
 """``cmudrive export --format leaderboard`` read back the way the leaderboard's and Bench2Drive's tools
-read it (issue 26).
+read it.
 
 The helpers ``their_*`` re-implement, from the tools' documented behaviour, only the arithmetic those
 tools do on the files: Bench2Drive's ``merge_route_json.py`` (DS = mean of ``score_composed``, success

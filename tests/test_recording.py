@@ -414,7 +414,7 @@ GOOD_EVENT = {"tick": 3, "cav": 0, "key": "red_light", "x": 1.0, "y": 2.0, "mess
 def test_a_log_the_replay_cannot_draw_is_refused_on_load(
     recorded: Recorded, tmp_path: Path, change: dict[str, object], message: str
 ) -> None:
-    """Issue 22: dt = 0, an event without a tick or with a string tick ended in tracebacks mid-replay;
+    """dt = 0, an event without a tick or with a string tick ended in tracebacks mid-replay;
     NaN positions and events of CAV 99 were drawn as if they were data."""
     with np.load(recorded.path) as npz:
         if change.get("x") == "nan":
@@ -436,7 +436,7 @@ def test_a_log_the_replay_cannot_draw_is_refused_on_load(
 def test_declared_sizes_are_checked_before_reading(
     recorded: Recorded, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """Issue 22: a 5.9 MB log asked numpy for 5.59 GiB. A member whose .npy header declares more data than
+    """A 5.9 MB log asked numpy for 5.59 GiB. A member whose .npy header declares more data than
     it holds, and a log whose members declare more than MAX_LOG_BYTES, are refused before np.load."""
     from cmudrive.bench import recording
 

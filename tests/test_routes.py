@@ -375,8 +375,8 @@ def test_committed_smoke_routes_parse_and_densify() -> None:
 # ------------------------------------------------------------------------------------------ input bounds
 def test_oversized_route_files_are_refused_before_planning(tmp_path: Path) -> None:
     """A CAV with more waypoints than MAX_WAYPOINTS, a file with more than MAX_FILE_WAYPOINTS and a file
-    larger than MAX_FILE_BYTES are refused with the file (and route, CAV) named, in seconds: the 45 MB
-    file of issue 22 took minutes in planning."""
+    larger than MAX_FILE_BYTES are refused with the file (and route, CAV) named, in seconds: a 45 MB
+    file once took minutes in planning."""
     from cmudrive.bench import routes as routes_module
     from cmudrive.bench.route_check import check_route_file
 
@@ -426,7 +426,7 @@ def test_route_ids_are_printable_and_bounded(tmp_path: Path) -> None:
 
 
 def test_cavs_starting_on_one_spot_are_refused_naming_them(tmp_path: Path) -> None:
-    """16 CAVs on one start spawn inside each other (issue 22: RC 19.6); `routes check` and the
+    """16 CAVs on one start spawn inside each other (once: RC 19.6); `routes check` and the
     evaluator's planning (``dense_routes``) refuse them and name the CAVs."""
     from cmudrive.bench.route_check import check_route_file
 

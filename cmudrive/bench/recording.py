@@ -1,4 +1,4 @@
-"""Route logs: a compact record of one route's run, and its replay as a BEV video.
+"""Route logs: a compact record of one route's run; its recorder, and its loader that checks every field.
 
 A log holds every actor's pose per tick, the CAVs' controls, the traffic lights, the CAVs' routes and the
 infraction events, in one compressed ``.npz`` of plain arrays (no pickles: loading a log never runs
@@ -31,7 +31,9 @@ Typical use::
         recorder.record(snap, controls, np.flatnonzero(snap.role == Role.CAV))
         recorder.add_events(recorder.num_ticks - 1, [infraction_event(cav, inf) for cav, inf in new])
     recorder.save("results/logs/route_0.npz")
-    replay("results/logs/route_0.npz", Path("route_0.mp4"), follow=0)
+    log = load_route_log("results/logs/route_0.npz")
+
+``cmudrive.viz.replay`` draws a log as a BEV video.
 """
 
 from __future__ import annotations
@@ -69,8 +71,6 @@ EVENT_SECONDS = 3.0  # [s] an event counts as active (a replay shows its marker)
 # ~120 MB (28 bytes per actor row), so this leaves ~9x room; larger declared sizes are refused unread
 MAX_LOG_BYTES = 2**30
 MAX_DT = 10.0  # [s] a tick longer than this is not a recording of ours
-
-# replay
 
 
 class RouteLogError(ValueError):
