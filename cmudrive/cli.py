@@ -219,7 +219,7 @@ def sim_demo(
     ] = False,
 ) -> None:
     """CAVs on a lane-following autopilot among background traffic, rendered in BEV."""
-    from cmudrive.sim.demo import run_demo
+    from cmudrive.viz.demo import run_demo
 
     if follow is not None and not 0 <= follow < cavs:
         _fail(ValueError(f"--follow {follow}: there are only CAVs 0-{cavs - 1}"))
