@@ -17,9 +17,9 @@ from cmudrive.bench.route_gen import (
     START_RING_WIDENED,
     add_cavs,
     generate_routes,
-    main,
 )
 from cmudrive.bench.routes import CavSpec, RouteSpec, RouteSpecError, ScenarioSpec, read_routes, write_routes
+from cmudrive.cli.routes import generate_main
 from cmudrive.maps import RouteError, available_towns, densify, load_map
 
 FIXTURES = Path(__file__).parent / "fixtures"
@@ -350,7 +350,10 @@ def test_generate_routes_is_deterministic_by_seed() -> None:
 
 def test_generate_command_writes_a_readable_file_with_its_command(tmp_path: Path) -> None:
     out = tmp_path / "gen.xml"
-    assert main(["generate", "-o", str(out), "-s", "3", "-p", "t", "suburb:2:ClearNight", "downtown"]) == 0
+    assert (
+        generate_main(["generate", "-o", str(out), "-s", "3", "-p", "t", "suburb:2:ClearNight", "downtown"])
+        == 0
+    )
     routes = read_routes(out)
     assert [(r.id, r.town, len(r.cavs), r.weather) for r in routes] == [
         ("t_00", "suburb", 2, "ClearNight"),
