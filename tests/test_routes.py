@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cmudrive.bench.bench2drive import import_leaderboard_routes
-from cmudrive.bench.route_gen import (
+from cmudrive.bench.authoring.bench2drive import import_leaderboard_routes
+from cmudrive.bench.authoring.route_gen import (
     MIN_START_GAP,
     START_RING,
     START_RING_WIDENED,

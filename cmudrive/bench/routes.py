@@ -20,7 +20,7 @@ our map frame, see ``cmudrive.maps.coords``). CAV 0 drives the scenario route. A
 per route (``MIN_CAVS``..``MAX_CAVS``); a :class:`RouteSpec` in memory may hold one (a single-ego route as
 imported from Bench2Drive), and ``min_cavs=1`` reads and writes such files.
 
-Generating routes (placing CAVs by the road topology) is ``cmudrive.bench.route_gen``'s job.
+Generating routes (placing CAVs by the road topology) is ``cmudrive.bench.authoring.route_gen``'s job.
 """
 
 from __future__ import annotations
@@ -390,7 +390,7 @@ def _route_from_xml(elem: ET.Element, min_cavs: int) -> RouteSpec:
         if elem.find(tag) is not None:
             raise RouteSpecError(
                 f"has {hint} directly under <route>: this looks like a single-ego Leaderboard/Bench2Drive "
-                "route file; convert it with cmudrive.bench.bench2drive.import_leaderboard_routes"
+                "route file; convert it with cmudrive.bench.authoring.bench2drive.import_leaderboard_routes"
             )
     _check_attrs(elem, _ROUTE_ATTRS, "<route>")
     unknown = sorted({c.tag for c in elem} - {"cav", "scenarios"})

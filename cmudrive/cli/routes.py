@@ -82,7 +82,7 @@ def generate_main(argv: Sequence[str] | None = None) -> int:
     command and a summary in its header comment; or ``cmudrive routes generate -b NAME -o FILE``: the
     named benchmark route set (``benchmark_gen.ROUTE_SETS``). Options are written single-dash in the
     header because an XML comment cannot hold ``--``."""
-    from cmudrive.bench.route_gen import generate_route_set
+    from cmudrive.bench.authoring.route_gen import generate_route_set
     from cmudrive.bench.routes import write_routes
 
     parser = argparse.ArgumentParser(prog="cmudrive routes")
@@ -125,7 +125,7 @@ def generate_main(argv: Sequence[str] | None = None) -> int:
 
 
 def _main_benchmark(name: str, output: Path) -> int:
-    from cmudrive.bench.benchmark_gen import ROUTE_SETS, generate_set, stats_lines
+    from cmudrive.bench.authoring.benchmark_gen import ROUTE_SETS, generate_set, stats_lines
     from cmudrive.bench.routes import write_routes
 
     if name not in ROUTE_SETS:
@@ -193,7 +193,7 @@ def routes_stats(
     counts."""
     from rich.table import Table
 
-    from cmudrive.bench.benchmark_gen import set_stats
+    from cmudrive.bench.authoring.benchmark_gen import set_stats
     from cmudrive.bench.routes import read_routes
 
     try:
@@ -229,7 +229,7 @@ def routes_import(
     seed: Annotated[int, typer.Option(help="seed of the added CAVs")] = 0,
 ) -> None:
     """Import single-ego leaderboard routes (routes on towns we have no map of are skipped, with why)."""
-    from cmudrive.bench.bench2drive import import_leaderboard_routes
+    from cmudrive.bench.authoring.bench2drive import import_leaderboard_routes
     from cmudrive.bench.routes import write_routes
 
     try:

@@ -11,7 +11,7 @@ under the five weather presets. A route is made in four steps, each drawn from
    60-200 m ahead. The trigger point lies 3-15 m after the start (as in Bench2Drive-220).
 2. **Parameters**: Bench2Drive-220's ranges per type (``route_rules.RULES``, from
    ``reference/SCENARIOS.md``), flow locations derived from the junction's topology
-   (:mod:`cmudrive.bench.flow_places`).
+   (:mod:`cmudrive.bench.authoring.flow_places`).
 3. **Placement check**: the scenario class is built on the map exactly as the evaluator builds it
    (``REGISTRY[type](spec, ctx)`` computes every actor's place at construction); a ``ScenarioError``
    rejects the candidate and the next attempt is drawn.
@@ -28,17 +28,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cmudrive.bench.flow_places import FLOW_PLACERS
-from cmudrive.bench.route_check import build_placed, place_scenarios
-from cmudrive.bench.route_gen import MIN_START_GAP, add_cavs
-from cmudrive.bench.route_geometry import (
+from cmudrive.bench.authoring.flow_places import FLOW_PLACERS
+from cmudrive.bench.authoring.route_gen import MIN_START_GAP, add_cavs
+from cmudrive.bench.authoring.route_geometry import (
     COORD_DECIMALS,
     LANE_END_MARGIN,
     Topology,
     carla_points,
     route_keypoints,
 )
-from cmudrive.bench.route_rules import RULES, TypeRule
+from cmudrive.bench.authoring.route_rules import RULES, TypeRule
+from cmudrive.bench.route_check import build_placed, place_scenarios
 from cmudrive.bench.routes import CavSpec, RouteSpec, ScenarioSpec
 from cmudrive.bench.scenario_types import SCENARIO_TYPES
 from cmudrive.bench.scenarios.flows import VehicleFlow

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cmudrive.bench.route_geometry import Topology, carla_points
+from cmudrive.bench.authoring.route_geometry import Topology, carla_points
 from cmudrive.bench.routes import MAX_CAVS, CavSpec, RouteSpec, ScenarioSpec
 from cmudrive.maps import LanePos, RoadMap, Route, RouteError, load_map
 from cmudrive.maps.cache import resolve_map_path
