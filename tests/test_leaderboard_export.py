@@ -27,7 +27,6 @@ from typer.testing import CliRunner
 from cmudrive.bench.export import export_leaderboard
 from cmudrive.bench.leaderboard import ExportError
 from cmudrive.bench.metrics import multi_ability, route_result, summarize
-from cmudrive.bench.recording import load_route_log
 from cmudrive.bench.records import (
     INFRACTION_KEYS,
     STATUS_AGENT_CRASHED,
@@ -40,6 +39,7 @@ from cmudrive.bench.records import (
     Infraction,
     RouteResult,
 )
+from cmudrive.bench.route_log import load_route_log
 from cmudrive.bench.routes import CavSpec, RouteSpec, ScenarioSpec, route_sha256, write_routes
 from cmudrive.cli import app
 from cmudrive.sim.weather import weather_from_carla
