@@ -179,3 +179,18 @@ RoutesSubset = Annotated[
         "comma-separated (Accident_0,HighwayCutIn_2 or 0-5 or 3,7,12; an exact id wins)"
     ),
 ]
+
+# options of eval and data collect: which routes run where
+Workers = Annotated[
+    int | None,
+    typer.Option(
+        min=1, help=f"routes run in parallel (local executor); default: CPUs, at most {MAX_WORKERS}"
+    ),
+]
+Executor = Annotated[str, typer.Option(help="local or ray")]
+RayAddress = Annotated[str | None, typer.Option(help="address of an existing Ray cluster")]
+TickCap = Annotated[int, typer.Option(min=1, help="ticks per route at most (20 per second)")]
+TownDirs = Annotated[
+    list[Path] | None,
+    typer.Option(help="folder of <town>.net.xml networks, searched after the route file's own folder"),
+]

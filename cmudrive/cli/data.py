@@ -10,8 +10,12 @@ import typer
 from rich.table import Table
 
 from cmudrive.cli.common import (
-    MAX_WORKERS,
+    Executor,
+    RayAddress,
     RoutesSubset,
+    TickCap,
+    TownDirs,
+    Workers,
     console,
     err_console,
     fail,
@@ -36,31 +40,23 @@ def data_collect(
     out: Annotated[Path, typer.Option(help="dataset folder: one <route>.parquet shard per route")] = Path(
         "data/train"
     ),
-    workers: Annotated[
-        int | None,
-        typer.Option(
-            min=1, help=f"routes run in parallel (local executor); default: CPUs, at most {MAX_WORKERS}"
-        ),
-    ] = None,
-    executor: Annotated[str, typer.Option(help="local or ray")] = "local",
-    ray_address: Annotated[str | None, typer.Option(help="address of an existing Ray cluster")] = None,
+    workers: Workers = None,
+    executor: Executor = "local",
+    ray_address: RayAddress = None,
     resume: Annotated[
         bool, typer.Option(help="collect only the routes without a complete shard in OUT")
     ] = False,
     limit_routes: Annotated[
         int | None, typer.Option(min=1, help="only the first K routes of the file")
     ] = None,
-    tick_cap: Annotated[int, typer.Option(min=1, help="ticks per route at most (20 per second)")] = 4000,
+    tick_cap: TickCap = 4000,
     step_timeout: Annotated[
         float, typer.Option(help="seconds the expert and sensors may take per step; a hung worker is killed")
     ] = 10.0,
     allow_benchmark_routes: Annotated[
         bool, typer.Option(help="collect on routes of cmudrive220/cmudrive44 too (never for training data)")
     ] = False,
-    town_dir: Annotated[
-        list[Path] | None,
-        typer.Option(help="folder of <town>.net.xml networks, searched after the route file's own folder"),
-    ] = None,
+    town_dir: TownDirs = None,
 ) -> None:
     """Run the expert on the routes and save one sample per active CAV every 5th tick (docs/data.md)."""
     from rich.markup import escape

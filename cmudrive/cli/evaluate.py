@@ -10,8 +10,12 @@ from typing import Annotated, Any
 import typer
 
 from cmudrive.cli.common import (
-    MAX_WORKERS,
+    Executor,
+    RayAddress,
     RoutesSubset,
+    TickCap,
+    TownDirs,
+    Workers,
     console,
     err_console,
     fail,
@@ -82,12 +86,7 @@ def evaluate(
         ),
     ] = None,
     out: Annotated[Path, typer.Option(help="output folder")] = Path("out/eval"),
-    workers: Annotated[
-        int | None,
-        typer.Option(
-            min=1, help=f"routes run in parallel (local executor); default: CPUs, at most {MAX_WORKERS}"
-        ),
-    ] = None,
+    workers: Workers = None,
     resume: Annotated[
         bool, typer.Option(help="skip routes already finished in OUT, re-run crashed ones")
     ] = False,
@@ -99,10 +98,10 @@ def evaluate(
             "is refused"
         ),
     ] = False,
-    executor: Annotated[str, typer.Option(help="local or ray")] = "local",
-    ray_address: Annotated[str | None, typer.Option(help="address of an existing Ray cluster")] = None,
+    executor: Executor = "local",
+    ray_address: RayAddress = None,
     record: Annotated[bool, typer.Option(help="save a replayable log per route in OUT/logs")] = False,
-    tick_cap: Annotated[int, typer.Option(min=1, help="ticks per route at most (20 per second)")] = 4000,
+    tick_cap: TickCap = 4000,
     seed: Annotated[
         int,
         typer.Option(
@@ -118,10 +117,7 @@ def evaluate(
         float | None,
         typer.Option(help="GiB of address space per route's worker (exceeding it: Agent crashed)"),
     ] = None,
-    town_dir: Annotated[
-        list[Path] | None,
-        typer.Option(help="folder of <town>.net.xml networks, searched after the route file's own folder"),
-    ] = None,
+    town_dir: TownDirs = None,
     v2v_range: Annotated[
         float | None, typer.Option(help="V2V link: messages between CAVs farther apart (metres) are lost")
     ] = None,
