@@ -48,9 +48,9 @@ def main() -> None:
     from cmudrive.agents.base import agent_factory, load_agent_class
     from cmudrive.bench.evaluator import EvalConfig, RouteHooks, evaluate_route
     from cmudrive.bench.routes import read_routes
-    from cmudrive.cli import _routes_path
+    from cmudrive.cli.common import routes_path
 
-    specs = {s.id: s for s in read_routes(_routes_path("cmudrive44"))}
+    specs = {s.id: s for s in read_routes(routes_path("cmudrive44"))}
     if args.route not in specs:
         sys.exit(f"route {args.route!r} is not in cmudrive44")
     spec = specs[args.route]

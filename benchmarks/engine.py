@@ -42,10 +42,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's 
 from cmudrive.agents.autopilot import LaneFollowingAutopilot
 from cmudrive.maps import load_map, resolve_map_path
 from cmudrive.sim.background import BackgroundActivity, BackgroundConfig
-from cmudrive.sim.demo import demo_routes
 from cmudrive.sim.dynamics import Controls
 from cmudrive.sim.sumo import start_sumo
 from cmudrive.sim.world import World, WorldConfig
+from cmudrive.viz.demo import demo_routes
 
 WARMUP_TICKS = 40
 GRID_CAVS = (2, 4, 8, 16)

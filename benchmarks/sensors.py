@@ -32,11 +32,11 @@ from cmudrive.maps.scenery import StaticScenery
 from cmudrive.sensors import PerceptionFrame, SimulatedOccupancy, compute_visibility
 from cmudrive.sensors.camera import CameraConfig, FrontCamera
 from cmudrive.sim.background import BackgroundActivity, BackgroundConfig
-from cmudrive.sim.demo import demo_routes
 from cmudrive.sim.snapshot import ActorKind, Role, Snapshot
 from cmudrive.sim.weather import WEATHERS, get_weather
 from cmudrive.sim.world import World, WorldConfig
 from cmudrive.v2v import V2VNetwork
+from cmudrive.viz.demo import demo_routes
 
 WARMUP_TICKS = 200  # [ticks] of 0.05 s before recording: traffic spreads out, CAVs get moving
 

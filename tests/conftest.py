@@ -10,7 +10,6 @@ from cmudrive.maps import RoadMap, read_sumo_net
 from cmudrive.maps.netconvert import run_netconvert
 
 FIXTURES = Path(__file__).parent / "fixtures"
-SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 
 
 def build_mini(out: Path) -> Path:

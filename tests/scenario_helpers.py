@@ -9,8 +9,8 @@ import numpy as np
 
 from cmudrive.agents import Observation, Observations, PidAgent
 from cmudrive.bench import CavSpec, EvalConfig, RouteSpec, evaluate_route
-from cmudrive.bench.recording import RouteLog, load_route_log
 from cmudrive.bench.records import RouteResult
+from cmudrive.bench.route_log import RouteLog, load_route_log
 from cmudrive.bench.routes import ScenarioSpec
 from cmudrive.maps import RoadMap, load_map
 from cmudrive.maps.coords import map_to_carla

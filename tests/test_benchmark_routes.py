@@ -12,9 +12,9 @@ from typer.testing import CliRunner
 
 from cmudrive.agents import PidAgent
 from cmudrive.bench import EvalConfig, evaluate_route
-from cmudrive.bench.benchmark_gen import CAV_MEAN, PRESETS, SAME_PLACE, cav_counts, generate_set
+from cmudrive.bench.authoring.benchmark_gen import CAV_MEAN, PRESETS, SAME_PLACE, cav_counts, generate_set
+from cmudrive.bench.authoring.route_gen import MIN_START_GAP
 from cmudrive.bench.route_check import check_route_file, place_scenarios
-from cmudrive.bench.route_gen import MIN_START_GAP
 from cmudrive.bench.routes import RouteSpec, read_routes
 from cmudrive.bench.scenario_types import SCENARIO_TYPES
 from cmudrive.cli import app

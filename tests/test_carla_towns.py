@@ -14,9 +14,9 @@ import sumolib
 
 from cmudrive.agents import AutopilotAgent
 from cmudrive.bench import EvalConfig, evaluate_route
+from cmudrive.bench.authoring.route_gen import generate_routes
 from cmudrive.bench.criteria.stop_lines import StopLineTable
 from cmudrive.bench.records import STATUS_AGENT_CRASHED, STATUS_SIM_CRASHED
-from cmudrive.bench.route_gen import generate_routes
 from cmudrive.bench.routes import read_routes, write_routes
 from cmudrive.maps import LanePos, RoadOption, RoutePlanner, load_map
 from cmudrive.maps.errors import NetconvertError

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from cmudrive.cli import _failures
+from cmudrive.cli.results import failures
 
 
 def cav(cav_id: str, status: str, **infractions: int) -> dict[str, object]:
@@ -23,9 +23,9 @@ def test_failures_name_each_cav_its_status_and_infractions() -> None:
         ],
     }
     # the blocked status is not repeated as an infraction; minimum speed (no penalty) is left out
-    assert _failures(route) == "cav1: got blocked; cav2: collisions_vehicle, red_light"
+    assert failures(route) == "cav1: got blocked; cav2: collisions_vehicle, red_light"
 
 
 def test_a_crashed_route_without_cav_records_says_its_status() -> None:
     route = {"status": "Failed - Simulation crashed", "error": "Traceback ...", "cavs": []}
-    assert _failures(route) == "Failed - Simulation crashed"
+    assert failures(route) == "Failed - Simulation crashed"

@@ -12,13 +12,13 @@ import sys
 from pathlib import Path
 
 import pytest
+import typer
 from rich.console import Console
 from typer.testing import CliRunner
 
-from cmudrive import cli
 from cmudrive.bench.route_sets import ROUTE_SET_PURPOSES, route_set_names
 from cmudrive.bench.routes import read_routes, write_routes
-from cmudrive.cli import app
+from cmudrive.cli import app, common, results
 
 REPO = Path(__file__).resolve().parents[1]
 SMOKE = REPO / "cmudrive" / "assets" / "routes" / "smoke.xml"
@@ -39,11 +39,11 @@ def test_eval_subset_checks_only_the_picked_routes(tmp_path: Path) -> None:
     write_routes(specs[:2], tmp_path / "r.xml")
     text = (tmp_path / "r.xml").read_text().replace('weather="ClearNoon"', 'weather="Sunny"', 1)
     (tmp_path / "r.xml").write_text(text)
-    _, picked = cli._read_specs(str(tmp_path / "r.xml"), None, refuse_invalid=True, subset="1")
+    _, picked = common.read_specs(str(tmp_path / "r.xml"), None, refuse_invalid=True, subset="1")
     assert [s.id for s in picked] == ["smoke_01"]
-    with pytest.raises(cli.typer.Exit):
-        cli._read_specs(str(tmp_path / "r.xml"), None, refuse_invalid=True, subset="0-1")
-    _, picked = cli._read_specs("smoke", None, limit=1, subset="2-3")
+    with pytest.raises(typer.Exit):
+        common.read_specs(str(tmp_path / "r.xml"), None, refuse_invalid=True, subset="0-1")
+    _, picked = common.read_specs("smoke", None, limit=1, subset="2-3")
     assert [s.id for s in picked] == ["smoke_02"]
 
 
@@ -102,7 +102,7 @@ def merged_with_a_long_reason() -> dict[str, object]:
 
 
 def test_results_in_a_log_are_plain_lines_with_the_whole_reason(capsys: pytest.CaptureFixture[str]) -> None:
-    cli._print_results(merged_with_a_long_reason())
+    results.print_results(merged_with_a_long_reason())
     out = capsys.readouterr().out
     line = next(x for x in out.splitlines() if x.startswith("route BlockedIntersection_2 "))
     fields = "Town03, HardRainNoon, 8 CAVs, Failed - Agent got blocked, RC 12.5, IS 0.700, DS 8.8"
@@ -113,8 +113,8 @@ def test_results_in_a_log_are_plain_lines_with_the_whole_reason(capsys: pytest.C
 
 def test_progress_in_a_terminal_shows_eta_and_simulated_time_ratio(monkeypatch: pytest.MonkeyPatch) -> None:
     buffer = io.StringIO()
-    monkeypatch.setattr(cli, "console", Console(file=buffer, force_terminal=True, width=160))
-    with cli._route_progress(Path("x.xml"), 2, 100) as (on_progress, done):
+    monkeypatch.setattr(common, "console", Console(file=buffer, force_terminal=True, width=160))
+    with common.route_progress(Path("x.xml"), 2, 100) as (on_progress, done):
         on_progress("r0", 20)
         done("r0", 60)
     out = buffer.getvalue()

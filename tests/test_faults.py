@@ -1,4 +1,4 @@
-"""Faults blamed on whoever caused them (issue 22, defects 4, 5 and 8): what the agent hands over is
+"""Faults blamed on whoever caused them: what the agent hands over is
 checked at the boundary, its clean-up is timed and cannot undo a finished route, its constructor's own
 exit is its crash; routes that cannot run are refused (or skipped and counted apart) before the first
 one starts; a checkpoint that does not load stops the run before any route."""

@@ -1,5 +1,5 @@
 """``cmudrive export --format leaderboard`` read back the way the leaderboard's and Bench2Drive's tools
-read it (issue 26).
+read it.
 
 The helpers ``their_*`` re-implement, from the tools' documented behaviour, only the arithmetic those
 tools do on the files: Bench2Drive's ``merge_route_json.py`` (DS = mean of ``score_composed``, success
@@ -27,7 +27,6 @@ from typer.testing import CliRunner
 from cmudrive.bench.export import export_leaderboard
 from cmudrive.bench.leaderboard import ExportError
 from cmudrive.bench.metrics import multi_ability, route_result, summarize
-from cmudrive.bench.recording import load_route_log
 from cmudrive.bench.records import (
     INFRACTION_KEYS,
     STATUS_AGENT_CRASHED,
@@ -40,6 +39,7 @@ from cmudrive.bench.records import (
     Infraction,
     RouteResult,
 )
+from cmudrive.bench.route_log import load_route_log
 from cmudrive.bench.routes import CavSpec, RouteSpec, ScenarioSpec, route_sha256, write_routes
 from cmudrive.cli import app
 from cmudrive.sim.weather import weather_from_carla

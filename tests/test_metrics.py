@@ -330,7 +330,7 @@ def test_first_junction_completion_round_trips_and_defaults():
 
 
 def test_infractions_carry_carla_frame_places_and_older_records_get_them():
-    """Issue 26: route files speak CARLA's frame (y mirrored against our map frame); an infraction at map
+    """Route files speak CARLA's frame (y mirrored against our map frame); an infraction at map
     y = +1.6 is at CARLA y = -1.6, and a record written before the CARLA pair existed reads back with it."""
     inf = Infraction("red_light", 10, 0.5, 195.0, 1.6, "ran a red light", factor=0.7)
     assert (inf.carla_x, inf.carla_y) == (195.0, -1.6)

@@ -129,7 +129,7 @@ def test_camera_images_come_batched_when_declared() -> None:
 def test_sensor_demo_video_shows_camera_occupancy_and_bev(tmp_path) -> None:
     import imageio.v3 as iio
 
-    from cmudrive.sim.demo import run_demo
+    from cmudrive.viz.demo import run_demo
 
     out = tmp_path / "sensors.gif"
     stats = run_demo("downtown", cavs=3, seconds=0.3, output=out, sensors=True, follow=1, window=60.0)

@@ -13,8 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cmudrive.bench.recording import RouteLog, RouteLogError, RouteRecorder, infraction_event, load_route_log
+from cmudrive.bench.recording import RouteRecorder, infraction_event
 from cmudrive.bench.records import Infraction
+from cmudrive.bench.route_log import RouteLog, RouteLogError, load_route_log
 from cmudrive.maps import LanePos, RoadMap, RoutePlanner
 from cmudrive.sim import Controls, Role, Snapshot, World, WorldConfig
 from cmudrive.viz.bev import BevView
@@ -414,7 +415,7 @@ GOOD_EVENT = {"tick": 3, "cav": 0, "key": "red_light", "x": 1.0, "y": 2.0, "mess
 def test_a_log_the_replay_cannot_draw_is_refused_on_load(
     recorded: Recorded, tmp_path: Path, change: dict[str, object], message: str
 ) -> None:
-    """Issue 22: dt = 0, an event without a tick or with a string tick ended in tracebacks mid-replay;
+    """dt = 0, an event without a tick or with a string tick ended in tracebacks mid-replay;
     NaN positions and events of CAV 99 were drawn as if they were data."""
     with np.load(recorded.path) as npz:
         if change.get("x") == "nan":
@@ -436,9 +437,9 @@ def test_a_log_the_replay_cannot_draw_is_refused_on_load(
 def test_declared_sizes_are_checked_before_reading(
     recorded: Recorded, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """Issue 22: a 5.9 MB log asked numpy for 5.59 GiB. A member whose .npy header declares more data than
+    """A 5.9 MB log asked numpy for 5.59 GiB. A member whose .npy header declares more data than
     it holds, and a log whose members declare more than MAX_LOG_BYTES, are refused before np.load."""
-    from cmudrive.bench import recording
+    from cmudrive.bench import route_log
 
     bomb = tmp_path / "bomb.npz"
     with zipfile.ZipFile(bomb, "w", zipfile.ZIP_DEFLATED) as archive:
@@ -450,9 +451,9 @@ def test_declared_sizes_are_checked_before_reading(
     def no_load(*args: object, **kwargs: object) -> None:
         raise AssertionError("np.load ran on a log whose sizes were not checked")
 
-    monkeypatch.setattr(recording.np, "load", no_load)
+    monkeypatch.setattr(route_log.np, "load", no_load)
     with pytest.raises(RouteLogError, match=r"bomb\.npz: member 'x\.npy' declares 6000000000 bytes"):
         load_route_log(bomb)
-    monkeypatch.setattr(recording, "MAX_LOG_BYTES", 1000)
+    monkeypatch.setattr(route_log, "MAX_LOG_BYTES", 1000)
     with pytest.raises(RouteLogError, match=r"mini_0\.npz declares 0\.\d+ GiB of data, more than the"):
         load_route_log(recorded.path)

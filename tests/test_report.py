@@ -128,7 +128,7 @@ def _one_route_file(tmp_path: Path, edit: dict[str, object], name: str = "result
 def test_nonsense_records_are_refused_naming_file_record_and_field(
     tmp_path: Path, edit: dict[str, object], message: str
 ) -> None:
-    """Issue 22: DS 150 with success, RC -500, success at DS 34, DS inf, negative CAV counts and
+    """DS 150 with success, RC -500, success at DS 34, DS inf, negative CAV counts and
     non-numbers were summarised (DS 82.95, RC -242 %) or ended in a traceback."""
     path = _one_route_file(tmp_path, edit)
     with pytest.raises(

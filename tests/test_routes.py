@@ -10,16 +10,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cmudrive.bench.bench2drive import import_leaderboard_routes
-from cmudrive.bench.route_gen import (
+from cmudrive.bench.authoring.bench2drive import import_leaderboard_routes
+from cmudrive.bench.authoring.route_gen import (
     MIN_START_GAP,
     START_RING,
     START_RING_WIDENED,
     add_cavs,
     generate_routes,
-    main,
 )
 from cmudrive.bench.routes import CavSpec, RouteSpec, RouteSpecError, ScenarioSpec, read_routes, write_routes
+from cmudrive.cli.routes import generate_main
 from cmudrive.maps import RouteError, available_towns, densify, load_map
 
 FIXTURES = Path(__file__).parent / "fixtures"
@@ -350,7 +350,10 @@ def test_generate_routes_is_deterministic_by_seed() -> None:
 
 def test_generate_command_writes_a_readable_file_with_its_command(tmp_path: Path) -> None:
     out = tmp_path / "gen.xml"
-    assert main(["generate", "-o", str(out), "-s", "3", "-p", "t", "suburb:2:ClearNight", "downtown"]) == 0
+    assert (
+        generate_main(["generate", "-o", str(out), "-s", "3", "-p", "t", "suburb:2:ClearNight", "downtown"])
+        == 0
+    )
     routes = read_routes(out)
     assert [(r.id, r.town, len(r.cavs), r.weather) for r in routes] == [
         ("t_00", "suburb", 2, "ClearNight"),
@@ -375,8 +378,8 @@ def test_committed_smoke_routes_parse_and_densify() -> None:
 # ------------------------------------------------------------------------------------------ input bounds
 def test_oversized_route_files_are_refused_before_planning(tmp_path: Path) -> None:
     """A CAV with more waypoints than MAX_WAYPOINTS, a file with more than MAX_FILE_WAYPOINTS and a file
-    larger than MAX_FILE_BYTES are refused with the file (and route, CAV) named, in seconds: the 45 MB
-    file of issue 22 took minutes in planning."""
+    larger than MAX_FILE_BYTES are refused with the file (and route, CAV) named, in seconds: a 45 MB
+    file once took minutes in planning."""
     from cmudrive.bench import routes as routes_module
     from cmudrive.bench.route_check import check_route_file
 
@@ -426,7 +429,7 @@ def test_route_ids_are_printable_and_bounded(tmp_path: Path) -> None:
 
 
 def test_cavs_starting_on_one_spot_are_refused_naming_them(tmp_path: Path) -> None:
-    """16 CAVs on one start spawn inside each other (issue 22: RC 19.6); `routes check` and the
+    """16 CAVs on one start spawn inside each other (once: RC 19.6); `routes check` and the
     evaluator's planning (``dense_routes``) refuse them and name the CAVs."""
     from cmudrive.bench.route_check import check_route_file
 

@@ -348,7 +348,7 @@ def _flip_camera_byte(shard: Path) -> None:
 
 
 def test_a_bit_flipped_shard_is_named_by_data_stats_and_train(data: Path, tmp_path: Path) -> None:
-    """Issue 22: `data stats` counted a bit-flipped shard as good samples, and `train` failed on it with a
+    """`data stats` counted a bit-flipped shard as good samples, and `train` failed on it with a
     traceback that never named it."""
     folder = tmp_path / "flipped"
     shutil.copytree(data, folder)

@@ -1,4 +1,6 @@
-"""Agents that drive CAVs: the batched agent interface, the PID smoke-test agent, the demo autopilot.
+"""Agents that drive CAVs: the batched agent interface and the rule-based agents, the PID smoke-test agent,
+the demo autopilot and the privileged expert (``cmudrive.agents.expert``). The learned V2V-VLA agent lives
+beside its model (``cmudrive.model.agent``); ``--agent`` names all four (``load_agent_class``).
 
 Write your own agent by subclassing :class:`Agent` (see README, "Evaluate your own agent")."""
 

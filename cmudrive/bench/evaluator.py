@@ -28,7 +28,7 @@ import time
 import traceback
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -129,15 +129,12 @@ def evaluate_route(
     spec: RouteSpec,
     make_agent: Callable[[], Agent],
     config: EvalConfig | None = None,
-    on_tick: Callable[[int], None] | None = None,
     hooks: RouteHooks | None = None,
 ) -> RouteResult:
     """Run one route to the end and score it (see the module docstring for what is raised). Time that
     numba spends compiling or loading kernels is not charged to the agent (``compile_clock``)."""
     config = config or EvalConfig()
     hooks = hooks or RouteHooks()
-    if on_tick is not None:
-        hooks = replace(hooks, tick=on_tick)
     with CompileClock(hooks.enter, lambda: hooks.current):
         return _run_route(spec, make_agent, config, hooks)
 

@@ -244,7 +244,7 @@ def metric_info(log: Any, cav: int) -> dict[str, dict[str, list[float]]]:
 
 
 def _load_log(path: Path, route: RouteResult) -> Any:
-    from cmudrive.bench.recording import RouteLogError, load_route_log
+    from cmudrive.bench.route_log import RouteLogError, load_route_log
 
     try:
         log = load_route_log(path)

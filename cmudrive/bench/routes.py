@@ -1,4 +1,4 @@
-"""Multi-CAV route files: the data model, reading and writing, and generation of CAV routes.
+"""Multi-CAV route files: the data model, reading, checking and writing.
 
 A route is one town, one weather preset, one SUMO seed, 1-16 CAV routes and any number of scenarios
 (``docs/route_format.md`` has the schema)::
@@ -20,10 +20,7 @@ our map frame, see ``cmudrive.maps.coords``). CAV 0 drives the scenario route. A
 per route (``MIN_CAVS``..``MAX_CAVS``); a :class:`RouteSpec` in memory may hold one (a single-ego route as
 imported from Bench2Drive), and ``min_cavs=1`` reads and writes such files.
 
-Generation (:func:`add_cavs`, :func:`generate_routes`) places the additional CAVs by the road topology:
-starts on other lanes near CAV 0's start, destinations reachable along the lane graph, stored as sparse
-keypoints that ``cmudrive.maps.densify`` joins again. ``python -m cmudrive.bench.routes generate`` writes a
-file (see :func:`main`).
+Generating routes (placing CAVs by the road topology) is ``cmudrive.bench.authoring.route_gen``'s job.
 """
 
 from __future__ import annotations
@@ -84,8 +81,7 @@ _FLOAT = re.compile(  # (nan and inf pass here to be refused as non-finite)
 )
 _XML_SPACE = " \t\r\n"  # what XML calls white space (a no-break space is not)
 
-# CAV generation (add_cavs / generate_routes)
-
+# names and attributes an XML route file may hold
 _XML_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_.-]*$")
 _ROUTE_ATTRS = frozenset({"id", "town", "weather", "seed"})
 _POSITION_ATTRS = frozenset({"x", "y", "z", "pitch", "roll", "yaw"})  # pitch/roll/yaw are ignored
@@ -394,7 +390,7 @@ def _route_from_xml(elem: ET.Element, min_cavs: int) -> RouteSpec:
         if elem.find(tag) is not None:
             raise RouteSpecError(
                 f"has {hint} directly under <route>: this looks like a single-ego Leaderboard/Bench2Drive "
-                "route file; convert it with cmudrive.bench.bench2drive.import_leaderboard_routes"
+                "route file; convert it with cmudrive.bench.authoring.bench2drive.import_leaderboard_routes"
             )
     _check_attrs(elem, _ROUTE_ATTRS, "<route>")
     unknown = sorted({c.tag for c in elem} - {"cav", "scenarios"})

@@ -1,4 +1,4 @@
-"""Rule-based language labels of a sample: the commentary and the communication sentence (issue 12).
+"""Rule-based language labels of a sample: the commentary and the communication sentence.
 
 For every active CAV at a sample tick, from the expert's decision and the privileged snapshot:
 

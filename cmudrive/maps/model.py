@@ -79,6 +79,18 @@ class TurnDir(IntEnum):
     INVALID = 6  # "invalid" (pedestrian links)
 
 
+# rank of each turn from right to left: the order in which the parts of a stop line are laid out from its
+# right end (BEV) and traffic-light heads sit in a row (camera mesh), right turns rightmost
+TURN_ORDER: dict[TurnDir, int] = {
+    TurnDir.RIGHT: 0,
+    TurnDir.PARTLY_RIGHT: 1,
+    TurnDir.STRAIGHT: 2,
+    TurnDir.PARTLY_LEFT: 3,
+    TurnDir.LEFT: 4,
+    TurnDir.TURN: 5,
+    TurnDir.INVALID: 6,
+}
+
 SUMO_TURN_DIRS: dict[str, TurnDir] = {
     "s": TurnDir.STRAIGHT,
     "l": TurnDir.LEFT,

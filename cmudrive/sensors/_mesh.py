@@ -13,7 +13,7 @@ import numpy as np
 import shapely
 from shapely.geometry import Polygon
 
-from cmudrive.maps.model import LaneKind, RoadMap, StopKind, TurnDir
+from cmudrive.maps.model import TURN_ORDER, LaneKind, RoadMap, StopKind, TurnDir
 from cmudrive.maps.scenery import SceneryKind, StaticScenery
 from cmudrive.maps.surfaces import junction_polygons, marking_lines
 from cmudrive.sensors._raster import FLAG_EMISSIVE, FLAG_ROAD
@@ -111,16 +111,6 @@ LAMP_SIZE = 0.3  # [m]
 STOP_SIGN = (0.80, 0.06, 0.08)
 STOP_SIGN_RADIUS = 0.38  # [m]
 STOP_SIGN_CENTRE = 2.2  # [m] above the road
-
-_TURN_ORDER = {  # right turns to the right of the head row, as the BEV renderer
-    TurnDir.RIGHT: 0,
-    TurnDir.PARTLY_RIGHT: 1,
-    TurnDir.STRAIGHT: 2,
-    TurnDir.PARTLY_LEFT: 3,
-    TurnDir.LEFT: 4,
-    TurnDir.TURN: 5,
-    TurnDir.INVALID: 6,
-}
 
 # box faces over corners 0-3 (bottom: front-left, front-right, rear-right, rear-left) and 4-7 (top)
 _FACES = np.array([[0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7], [4, 5, 6, 7]])
@@ -352,7 +342,7 @@ def signal_triangles(m: RoadMap) -> tuple[Triangles, Triangles, SignalLamps]:
             continue
         lane, tls = int(m.stop_lane[k]), int(m.stop_tls[k])
         links = np.flatnonzero((m.link_from == lane) & (m.link_tls == tls))
-        links = links[np.argsort([_TURN_ORDER[TurnDir(int(m.link_dir[i]))] for i in links], kind="stable")]
+        links = links[np.argsort([TURN_ORDER[TurnDir(int(m.link_dir[i]))] for i in links], kind="stable")]
         signals = list(dict.fromkeys(int(m.link_tls_index[i]) for i in links)) or [-1]
         top = HEAD_BOTTOM + HEAD_HEIGHT
         fixed.append(boxes(base[0], base[1], facing, 0.15, 0.15, 0.0, top, POLE))

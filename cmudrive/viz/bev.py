@@ -43,7 +43,7 @@ from matplotlib.colors import to_rgb
 from matplotlib.figure import Figure
 from PIL import Image, ImageDraw, ImageFont
 
-from cmudrive.maps.model import RoadMap, StopKind, TurnDir
+from cmudrive.maps.model import TURN_ORDER, RoadMap, StopKind, TurnDir
 from cmudrive.maps.scenery import SceneryKind, StaticScenery
 from cmudrive.maps.surfaces import junction_polygons, marking_lines
 from cmudrive.sim.snapshot import ActorKind, Role, Snapshot
@@ -132,15 +132,6 @@ HEADING_TICK_FROM = 0.35  # fraction of the half length where the tick starts (f
 HEADING_TICK_WIDTH = 0.3  # [m]
 BRAKE_LIGHT_SIZE = (0.35, 0.45)  # [m] along, across the rear of the box
 
-_TURN_ORDER = {  # right to left, as the parts of a stop line are laid out from its right end
-    TurnDir.RIGHT: 0,
-    TurnDir.PARTLY_RIGHT: 1,
-    TurnDir.STRAIGHT: 2,
-    TurnDir.PARTLY_LEFT: 3,
-    TurnDir.LEFT: 4,
-    TurnDir.TURN: 5,
-    TurnDir.INVALID: 6,
-}
 _LAYER = {  # drawing order: lower first
     ActorKind.PROP: 0,
     ActorKind.PEDESTRIAN: 1,
@@ -337,7 +328,7 @@ class BevRenderer:
         for k in np.flatnonzero(m.stop_kind == StopKind.TRAFFIC_LIGHT).tolist():
             lane, tls = int(m.stop_lane[k]), int(m.stop_tls[k])
             links = np.flatnonzero((m.link_from == lane) & (m.link_tls == tls))
-            turn_order = [_TURN_ORDER[TurnDir(int(m.link_dir[i]))] for i in links]
+            turn_order = [TURN_ORDER[TurnDir(int(m.link_dir[i]))] for i in links]
             links = links[np.argsort(turn_order, kind="stable")]
             signals = list(dict.fromkeys(int(m.link_tls_index[i]) for i in links))  # unique, in order
             if not signals:

@@ -1,4 +1,4 @@
-"""Replay a recorded route (``cmudrive.bench.recording``) as a BEV video, with each CAV's route and its
+"""Replay a recorded route (``cmudrive.bench.route_log``) as a BEV video, with each CAV's route and its
 infractions marked: a ring and a short label at the event position, visible for a few seconds from the
 event's tick (collisions red, red lights and stop signs orange, driving outside the route's lanes yellow,
 other failures grey). A minimum-speed record is not an infraction (it costs nothing, Bench2Drive records it
@@ -17,7 +17,7 @@ import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 from rich.progress import Progress
 
-from cmudrive.bench.recording import RouteLog, RouteLogError, load_route_log
+from cmudrive.bench.route_log import RouteLog, RouteLogError, load_route_log
 
 if TYPE_CHECKING:
     from cmudrive.maps import RoadMap

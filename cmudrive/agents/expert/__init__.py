@@ -1,4 +1,4 @@
-"""The privileged rule-based expert that drives every CAV of a route (issue 11), in the spirit of PDM-Lite.
+"""The privileged rule-based expert that drives every CAV of a route, in the spirit of PDM-Lite.
 
 Modules: ``forecast`` (short-horizon rollouts and oriented-box conflicts), ``detour`` (lateral path shifts
 around obstacles), ``agent`` (the :class:`ExpertAgent` that combines them with IDM, lights, stop signs and

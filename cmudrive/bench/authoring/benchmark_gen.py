@@ -1,6 +1,6 @@
 """The benchmark route sets: 44 scenario types x N routes, each route a placed scenario and 2-16 CAVs.
 
-``generate_benchmark("cmudrive220")`` builds the paper's benchmark (Table 1: 220 routes, 2-16 CAVs, mean
+``generate_set("cmudrive220")`` builds the paper's benchmark (Table 1: 220 routes, 2-16 CAVs, mean
 6.56): for every type of ``scenario_types.SCENARIO_TYPES`` five routes on different towns or junctions,
 under the five weather presets. A route is made in four steps, each drawn from
 ``numpy.random.default_rng([seed, type index, k, attempt])``:
@@ -9,8 +9,9 @@ under the five weather presets. A route is made in four steps, each drawn from
    of the kind the type needs (turn direction, traffic light / no light / stop sign, T-junction) and
    drive from 20-60 m before it to 30-90 m after it; road types start on a random lane point and plan
    60-200 m ahead. The trigger point lies 3-15 m after the start (as in Bench2Drive-220).
-2. **Parameters**: Bench2Drive-220's ranges per type (``reference/SCENARIOS.md``), flow locations
-   derived from the junction's topology (:mod:`cmudrive.bench.flow_places`).
+2. **Parameters**: Bench2Drive-220's ranges per type (``route_rules.RULES``, from
+   ``reference/SCENARIOS.md``), flow locations derived from the junction's topology
+   (:mod:`cmudrive.bench.authoring.flow_places`).
 3. **Placement check**: the scenario class is built on the map exactly as the evaluator builds it
    (``REGISTRY[type](spec, ctx)`` computes every actor's place at construction); a ``ScenarioError``
    rejects the candidate and the next attempt is drawn.
@@ -24,21 +25,20 @@ import dataclasses
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
-from cmudrive.bench.flow_places import FLOW_PLACERS
-from cmudrive.bench.route_check import build_placed, place_scenarios
-from cmudrive.bench.route_gen import (
+from cmudrive.bench.authoring.flow_places import FLOW_PLACERS
+from cmudrive.bench.authoring.route_gen import MIN_START_GAP, add_cavs
+from cmudrive.bench.authoring.route_geometry import (
     COORD_DECIMALS,
     LANE_END_MARGIN,
-    MIN_START_GAP,
-    _carla_points,
-    _keypoints,
-    _Topology,
-    add_cavs,
+    Topology,
+    carla_points,
+    route_keypoints,
 )
+from cmudrive.bench.authoring.route_rules import RULES, TypeRule
+from cmudrive.bench.route_check import build_placed, place_scenarios
 from cmudrive.bench.routes import CavSpec, RouteSpec, ScenarioSpec
 from cmudrive.bench.scenario_types import SCENARIO_TYPES
 from cmudrive.bench.scenarios.flows import VehicleFlow
@@ -50,7 +50,6 @@ from cmudrive.maps.model import JunctionKind, TurnDir
 PRESETS = ("ClearNoon", "CloudySunset", "HardRainNoon", "ClearNight", "FogMorning")
 ROUTE_LENGTH = (50.0, 220.0)  # [m] CAV 0's dense route
 ROAD_ROUTE = (60.0, 200.0)  # [m] planned length of a road type's CAV 0 route
-TRIGGER_AFTER_START = (3.0, 15.0)  # [m] trigger point along CAV 0's route from its start
 BEFORE_JUNCTION = (20.0, 60.0)  # [m] a junction type's start before the junction entry
 AFTER_JUNCTION = (30.0, 90.0)  # [m] its goal past the junction exit
 JUNCTION_CAV_ROUTE = (100.0, 250.0)  # [m] planned route of a CAV from another entry of the junction
@@ -60,176 +59,6 @@ CAV_RANGE = (2, 16)  # [-] CAVs per route (paper Table 1)
 CAV_MEAN = 6.56  # [-] mean CAVs per route of the 220 (paper Table 1)
 
 
-# --------------------------------------------------------------------------------------------- the rules
-@dataclass(frozen=True)
-class TypeRule:
-    """Where a type can be built and its Bench2Drive-220 parameter ranges."""
-
-    towns: tuple[str, ...]  # tried in turn, route k starting at towns[k % len]
-    junction: str = ""  # "" road type; else the turn at the junction: left, right, straight, turn, any
-    control: str = "any"  # signal, nosignal, stop, any
-    # name -> fixed str, tuple of str choices, (lo, hi) int or float range, or ((from lo, hi), (to lo, hi))
-    params: tuple[tuple[str, Any], ...] = ()
-    trigger_at: tuple[float, float] = TRIGGER_AFTER_START  # [m] trigger along the route from its start
-    three_way: bool = False  # the junction has exactly three approaches (T_Junction)
-    lane_shift: bool = False  # the route moves two lanes to the left (SequentialLaneChange)
-
-
-MULTI = ("interurban", "Town04", "Town03", "highway", "Town05", "Town06", "corridor")
-TWO_WAY = ("downtown", "Town01", "suburb", "Town02", "Town07", "corridor")
-SIDE = ("downtown", "Town03", "suburb", "Town01", "Town02", "corridor", "Town05", "Town07")
-URBAN_J = ("downtown", "Town03", "suburb", "Town05", "Town01", "corridor", "Town02", "Town07", "Town04")
-SIGNAL_J = ("downtown", "Town03", "Town05", "Town01", "corridor", "Town02", "Town07", "Town04")
-NOSIGNAL_J = ("suburb", "downtown", "corridor", "Town03", "Town04", "Town06", "Town07", "interurban")
-STOP_J = ("downtown", "suburb", "corridor", "interurban")
-RAMP = ("highway", "Town04", "Town06", "interurban")
-
-
-def _flow(
-    speed: tuple[int, int], frm: tuple[int, int], to: tuple[int, int]
-) -> tuple[tuple[str, object], ...]:
-    return (("flow_speed", speed), ("source_dist_interval", (frm, to)))
-
-
-RULES: dict[str, TypeRule] = {
-    "Accident": TypeRule(MULTI, params=(("distance", (40, 44)), ("direction", "right"), ("speed", (53, 57)))),
-    "AccidentTwoWays": TypeRule(
-        TWO_WAY, params=(("distance", (40, 44)), ("frequency", ((32, 63), (109, 184))))
-    ),
-    "BlockedIntersection": TypeRule(URBAN_J, junction="turn"),
-    "ConstructionObstacle": TypeRule(
-        MULTI, params=(("distance", (40, 45)), ("direction", "right"), ("speed", (47, 55)))
-    ),
-    "ConstructionObstacleTwoWays": TypeRule(
-        TWO_WAY, params=(("distance", (40, 45)), ("frequency", ((43, 70), (129, 200))))
-    ),
-    "ControlLoss": TypeRule(("Town01", "interurban", "Town02", "suburb", "Town07", "Town05")),
-    "CrossingBicycleFlow": TypeRule(
-        ("downtown", "corridor", "suburb"),
-        junction="left",
-        control="signal",
-        params=_flow((8, 12), (5, 15), (25, 30)),
-    ),
-    "DynamicObjectCrossing": TypeRule(
-        SIDE,
-        params=(
-            ("distance", (40, 50)),
-            ("direction", "right"),
-            ("blocker_model", ("static.prop.advertisement", "static.prop.container")),
-            ("crossing_angle", (0, 11)),
-        ),
-    ),
-    "EnterActorFlow": TypeRule(URBAN_J, junction="turn", params=_flow((12, 19), (17, 30), (30, 39))),
-    "HardBreakRoute": TypeRule(
-        ("interurban", "Town01", "Town04", "Town03", "highway"), trigger_at=(12.0, 14.0)
-    ),
-    "HazardAtSideLane": TypeRule(
-        MULTI,
-        params=(
-            ("distance", (41, 45)),
-            ("speed", (32, 59)),
-            ("bicycle_speed", (6, 12)),
-            ("bicycle_drive_distance", (40, 101)),
-        ),
-    ),
-    "HazardAtSideLaneTwoWays": TypeRule(
-        TWO_WAY,
-        params=(
-            ("distance", (41, 45)),
-            ("frequency", (75, 100)),
-            ("bicycle_speed", (7, 11)),
-            ("bicycle_drive_distance", (80, 116)),
-        ),
-    ),
-    "HighwayCutIn": TypeRule(RAMP, junction="straight"),
-    "HighwayExit": TypeRule(RAMP, junction="right", params=_flow((10, 15), (11, 20), (33, 46))),
-    "InterurbanActorFlow": TypeRule(
-        ("interurban", "Town04", "suburb", "Town05", "Town07", "Town03"),
-        junction="left",
-        params=_flow((15, 16), (42, 53), (78, 98)),
-    ),
-    "InterurbanAdvancedActorFlow": TypeRule(
-        ("suburb", "Town01", "interurban", "Town02", "Town07", "Town03"),
-        junction="turn",
-        params=(*_flow((16, 18), (36, 42), (84, 94)), ("direction", "right")),
-    ),
-    "InvadingTurn": TypeRule(TWO_WAY, params=(("distance", (50, 60)), ("offset", (0.18, 0.34)))),
-    "MergerIntoSlowTraffic": TypeRule(
-        (*RAMP, "Town03", "Town05"), junction="any", params=_flow((9, 10), (14, 16), (33, 42))
-    ),
-    "MergerIntoSlowTrafficV2": TypeRule(
-        (*RAMP, "Town03", "Town05"), junction="any", params=_flow((10, 10), (11, 14), (30, 34))
-    ),
-    "NonSignalizedJunctionLeftTurn": TypeRule(
-        NOSIGNAL_J, junction="left", control="nosignal", params=_flow((8, 11), (15, 24), (25, 30))
-    ),
-    "NonSignalizedJunctionLeftTurnEnterFlow": TypeRule(
-        NOSIGNAL_J, junction="left", control="nosignal", params=_flow((8, 10), (15, 19), (26, 30))
-    ),
-    "NonSignalizedJunctionRightTurn": TypeRule(
-        NOSIGNAL_J, junction="right", control="nosignal", params=_flow((8, 14), (16, 22), (25, 30))
-    ),
-    # direction: by CAV 0's turn (_adversary_side)
-    "OppositeVehicleRunningRedLight": TypeRule(SIGNAL_J, junction="any", control="signal"),
-    "OppositeVehicleTakingPriority": TypeRule(NOSIGNAL_J, junction="any", control="nosignal"),
-    "ParkedObstacle": TypeRule(
-        MULTI, params=(("distance", (40, 43)), ("direction", "right"), ("speed", (40, 59)))
-    ),
-    "ParkedObstacleTwoWays": TypeRule(
-        TWO_WAY, params=(("distance", (40, 44)), ("frequency", ((31, 56), (106, 151))))
-    ),
-    "ParkingCrossingPedestrian": TypeRule(
-        SIDE, params=(("distance", (36, 45)), ("direction", "right"), ("crossing_angle", (0, 12)))
-    ),
-    "ParkingCutIn": TypeRule(SIDE, params=(("direction", "right"),)),
-    "ParkingExit": TypeRule(
-        SIDE,
-        params=(
-            ("direction", "right"),
-            ("front_vehicle_distance", (9, 9)),
-            ("behind_vehicle_distance", (9, 9)),
-        ),
-        trigger_at=(0.0, 0.0),
-    ),
-    "PedestrianCrossing": TypeRule(URBAN_J, junction="straight"),
-    "SequentialLaneChange": TypeRule(MULTI, trigger_at=(0.0, 0.0), lane_shift=True),
-    "SignalizedJunctionLeftTurn": TypeRule(
-        SIGNAL_J, junction="left", control="signal", params=_flow((9, 11), (15, 24), (25, 28))
-    ),
-    "SignalizedJunctionLeftTurnEnterFlow": TypeRule(
-        SIGNAL_J, junction="left", control="signal", params=_flow((8, 10), (16, 24), (25, 30))
-    ),
-    "SignalizedJunctionRightTurn": TypeRule(
-        SIGNAL_J, junction="right", control="signal", params=_flow((10, 14), (19, 24), (26, 38))
-    ),
-    "StaticCutIn": TypeRule(MULTI, params=(("distance", (40, 45)), ("direction", "right"))),
-    "T_Junction": TypeRule(
-        ("Town01", "Town02", "Town07", "Town04", "suburb", "downtown", "Town03", "Town05"),
-        junction="turn",
-        three_way=True,
-        trigger_at=(25.0, 31.0),
-    ),
-    "VanillaNonSignalizedTurn": TypeRule(NOSIGNAL_J, junction="right", control="nosignal"),
-    "VanillaNonSignalizedTurnEncounterStopsign": TypeRule(STOP_J, junction="left", control="stop"),
-    "VanillaSignalizedTurnEncounterGreenLight": TypeRule(SIGNAL_J, junction="turn", control="signal"),
-    "VanillaSignalizedTurnEncounterRedLight": TypeRule(SIGNAL_J, junction="turn", control="signal"),
-    "VehicleOpensDoorTwoWays": TypeRule(
-        SIDE,
-        params=(
-            ("distance", (37, 59)),
-            ("direction", "right"),
-            ("frequency", ((30, 40), (89, 98))),
-            ("speed", (40, 60)),
-        ),
-    ),
-    "VehicleTurningRoute": TypeRule(URBAN_J, junction="turn"),
-    "VehicleTurningRoutePedestrian": TypeRule(URBAN_J, junction="turn"),
-    "YieldToEmergencyVehicle": TypeRule(
-        ("interurban", "Town04", "highway", "Town06", "Town03", "Town05"), params=(("distance", (26, 30)),)
-    ),
-}
-
-
 # ------------------------------------------------------------------------------------------ route pieces
 class _Town:
     """A loaded town with its generation queries (cached per process)."""
@@ -237,7 +66,7 @@ class _Town:
     def __init__(self, name: str) -> None:
         self.name = name
         self.map = load_map(name)
-        self.topo = _Topology(self.map)
+        self.topo = Topology(self.map)
         m = self.map
         links = np.flatnonzero(
             ~m.lane_internal[m.link_from]
@@ -410,7 +239,7 @@ def _candidate(
         route = _shift_route(town, rng) if rule.lane_shift else _road_route(town, rng)
     if route is None or not ROUTE_LENGTH[0] <= route.length <= ROUTE_LENGTH[1]:
         return None
-    keypoints = np.round(_keypoints(route), COORD_DECIMALS)
+    keypoints = np.round(route_keypoints(route), COORD_DECIMALS)
     try:
         dense = densify(m, keypoints)
     except RouteError:
@@ -444,7 +273,7 @@ def _candidate(
     yaw = round(-math.degrees(float(dense.heading[k0])), 1) + 0.0
     trigger = (round(float(xy[0]), 2) + 0.0, round(float(xy[1]), 2) + 0.0, 0.0, yaw)
     sc = ScenarioSpec(f"{type_name}_1", type_name, trigger, params)
-    spec = RouteSpec(route_id, town.name, weather, seed, (CavSpec(0, _carla_points(keypoints)),), (sc,))
+    spec = RouteSpec(route_id, town.name, weather, seed, (CavSpec(0, carla_points(keypoints)),), (sc,))
     if place_scenarios(spec, m, [dense]) is not None:
         return None
     return _Candidate(spec, (town.name, junction, float(dense.xy[k0, 0]), float(dense.xy[k0, 1])))
@@ -497,7 +326,7 @@ def _junction_cavs(
         plan = topo.plan_from(LanePos(int(lane), s), JUNCTION_CAV_ROUTE, rng)
         if plan is None:
             continue
-        cavs.append(CavSpec(len(cavs), _carla_points(plan[0])))
+        cavs.append(CavSpec(len(cavs), carla_points(plan[0])))
         starts.append(xy)
         own.add(int(lane))
     return dataclasses.replace(spec, cavs=tuple(cavs))
@@ -701,9 +530,7 @@ def stats_lines(specs: Sequence[RouteSpec]) -> list[str]:
 __all__ = [
     "PRESETS",
     "ROUTE_SETS",
-    "RULES",
     "RouteSet",
-    "TypeRule",
     "actor_lanes",
     "cav_counts",
     "generate_route",

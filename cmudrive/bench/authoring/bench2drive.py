@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cmudrive.bench.route_gen import add_cavs
+from cmudrive.bench.authoring.route_gen import add_cavs
 from cmudrive.bench.routes import (
     MAX_CAVS,
     CavSpec,
