@@ -24,8 +24,9 @@ import torch
 from cmudrive.data.schema import packed_to_rgb
 from cmudrive.data.shards import load_shards
 from cmudrive.model import V2VVLA
+from cmudrive.model.dataset import DrivingDataset, split_routes
 from cmudrive.model.row import TRAIN_COLUMNS
-from cmudrive.model.train import DrivingDataset, TrainConfig, split_routes
+from cmudrive.model.train import TrainConfig
 
 Variant = Callable[[dict[str, Any]], dict[str, Any]]
 

@@ -17,7 +17,7 @@ import torch
 from transformers import InternVLForConditionalGeneration
 
 from cmudrive.model import V2VVLA, build_tiny_tokenizer, get_config
-from cmudrive.model.modeling import backbone_config
+from cmudrive.model.backbone import backbone_config
 from tests.model_rows import rows
 
 torch.set_num_threads(1)

@@ -25,19 +25,18 @@ from cmudrive.data.schema import packed_to_rgb
 from cmudrive.data.synthetic import write_synthetic_shards
 from cmudrive.model import V2VVLA
 from cmudrive.model.augment import YawAugment, rotate_camera, rotate_sample, rotated_frame
-from cmudrive.model.train import (
+from cmudrive.model.dataset import (
     BUCKETS,
     BucketSampler,
     DrivingDataset,
-    TrainConfig,
     communication_rows,
     keep_rows,
     load_split,
     repeat_rows,
     sampling_buckets,
     split_routes,
-    train,
 )
+from cmudrive.model.train import TrainConfig, train
 from cmudrive.sensors.camera import CameraConfig
 
 torch.set_num_threads(1)

@@ -69,6 +69,9 @@ def train_model(
         ),
     ] = None,
     num_workers: Annotated[int, typer.Option(min=0, help="DataLoader worker processes")] = 0,
+    compile: Annotated[
+        bool, typer.Option(help="torch.compile the language model (~1 min to compile; docs/model.md)")
+    ] = False,
     mixed_precision: Annotated[
         str, typer.Option(help="auto (bf16/fp16 on GPUs, none on CPU), no, fp16, bf16")
     ] = "auto",
@@ -108,6 +111,7 @@ def train_model(
             speed_dropout=speed_dropout,
             bucket_power=bucket_power,
             num_workers=num_workers,
+            compile=compile,
             mixed_precision=mixed_precision,
             augment=YawAugment(prob=augment_prob),
             seed=seed,
