@@ -8,8 +8,9 @@ whether the controller brakes. **The expert's decision** is SimLingo's brake rul
 (:func:`cmudrive.agents.control.brakes`: a desired speed below 0.4 m/s, or one the CAV exceeds by more
 than 10 %) applied to the expert's own target speed (``target_speed``: where its speed controller means
 to be in 0.5 s; it holds the brake below 0.3 m/s). **A model's decision**, for a model with a speed query
-(``speed_query``; what its agent uses): its stop probability above 0.5, or the brake rule applied to the
-speed it predicts to drive at (learned from the expert's ``desired_speed``); and, for every model, the
+(``speed_query``; what its agent uses): the brake rule applied to the speed it predicts to drive at
+(learned from the expert's ``desired_speed``), or, for a model that reads its speed, its stop probability
+above 0.5; and, for every model, the
 rule applied to the desired speed that SimLingo's controller reads from its speed waypoints (0.25 s to
 0.75 s; what the agent of a model without a speed query uses). The first lines of the table apply the
 rule to the expert's own speed waypoints and to its desired speed: what a perfect copy of either would
@@ -79,9 +80,12 @@ def model_stops(
             pred = model.predict(rows[i : i + batch], max_new_tokens=0)
             wp = pred.speed_waypoints.float().numpy().astype(np.float64)
             rule.append(brakes(speed[i : i + batch], desired_speed(wp)))
-            if pred.stop_prob is not None and pred.target_speed is not None:
+            if pred.stop_prob is not None and pred.target_speed is not None:  # as V2VVLAAgent decides
                 target = pred.target_speed.float().numpy().astype(np.float64)
-                head.append((pred.stop_prob.float().numpy() > 0.5) | brakes(speed[i : i + batch], target))
+                decided = brakes(speed[i : i + batch], target)
+                if model.config.speed_in_prompt:  # the stop head only for a model that reads its speed
+                    decided |= pred.stop_prob.float().numpy() > 0.5
+                head.append(decided)
     return np.concatenate(rule), (np.concatenate(head) if head else None)
 
 
@@ -117,7 +121,7 @@ def main() -> None:
         model = V2VVLA.from_pretrained(path).eval()
         rule, head = model_stops(model, rows, speed)
         if head is not None:
-            tables[f"{path}, stop head or rule on its speed (what the agent uses)"] = decision_table(
+            tables[f"{path}, rule on its speed (or stop head) (what the agent uses)"] = decision_table(
                 speed, expert, head
             )
         tables[f"{path}, its speed waypoints, SimLingo's rule"] = decision_table(speed, expert, rule)

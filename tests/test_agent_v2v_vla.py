@@ -260,6 +260,48 @@ def test_the_agent_wires_predictions_to_controls_partners_and_the_language_rate(
     assert agent.last_text[1].startswith("Turn left")
 
 
+class SpeedQueryModel(FakeModel):
+    """FakeModel with a speed query: every row predicts ``speed`` [m/s] to drive at and stop
+    probability ``stop``; ``config`` says whether the model reads its speed."""
+
+    def __init__(self, speed: float, stop: float, speed_in_prompt: bool) -> None:
+        super().__init__()
+        self.config = get_config("tiny").replace(speed_in_prompt=speed_in_prompt)
+        self.speed, self.stop = speed, stop
+
+    def predict(self, rows: list[dict[str, Any]], max_new_tokens: int | None = None) -> Any:
+        pred = super().predict(rows, max_new_tokens)
+        pred.target_speed = torch.full((len(rows),), self.speed)
+        pred.stop_prob = torch.full((len(rows),), self.stop)
+        return pred
+
+
+@pytest.mark.parametrize(
+    ("speed", "stop", "speed_in_prompt", "brakes"),
+    [
+        (5.0, 0.9, True, True),  # a model that reads its speed: its stop head brakes
+        (5.0, 0.9, False, False),  # one that never sees it: the head is not asked, 5 m/s > 3 m/s drives
+        (2.5, 0.1, False, True),  # 3 m/s > 1.1 x 2.5 m/s: the brake rule on its speed brakes
+        (0.2, 0.1, True, True),  # below 0.4 m/s: the rule brakes whatever the head says
+    ],
+)
+def test_go_stop_from_the_speed_query(
+    checkpoints: dict[str, Path], speed: float, stop: float, speed_in_prompt: bool, brakes: bool
+) -> None:
+    agent = V2VVLAAgent(checkpoint=checkpoints["coop"])
+    agent.model = SpeedQueryModel(speed, stop, speed_in_prompt)
+    agent.setup(RouteSetup("r", "mini", "ClearNoon", 0.05, tuple(plan([(0, 0), (100, 0)]) for _ in range(2))))
+    obs = Observations(
+        tick=0, time=0.0, cav_index=np.array([0, 1]), x=np.array([0.0, 10.0]), y=np.zeros(2),
+        yaw=np.zeros(2), speed=np.array([3.0, 3.0]), accel=np.zeros(2),
+        other_cavs=np.array([[[np.nan] * 3, [10.0, 0.0, 0.0]], [[-10.0, 0.0, 0.0], [np.nan] * 3]]),
+        camera=np.zeros((2, 128, 256, 3), np.uint8), merged_occupancy=np.zeros((2, 4, 192, 128), bool),
+    )  # fmt: skip
+    controls = agent.run_step(obs)
+    assert np.all(controls.brake == (1.0 if brakes else 0.0))
+    assert np.all((controls.throttle > 0) == (not brakes))
+
+
 # ---- closed loop ------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def straight(mini: RoadMap, mini_net: Path) -> RouteSpec:

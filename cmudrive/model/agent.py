@@ -14,8 +14,10 @@ Per tick, for the ``n`` active CAVs:
    depend on the language (the model's layout puts the queries before the answer), so the silent ticks
    drive exactly as the talking ones;
 3. SimLingo's controller (:class:`~cmudrive.agents.control.WaypointController`) turns the waypoints into
-   steer, throttle and brake; a model with a speed query (``speed_query``) decides go/stop and the
-   desired speed itself (brake where its stop probability exceeds 0.5), the path still steers;
+   steer, throttle and brake; a model with a speed query (``speed_query``) predicts the speed to drive
+   at, and the CAV brakes where SimLingo's brake rule says so for it (above it by 10 %, or it below 0.4
+   m/s) and, for a model that reads its speed, where its stop probability exceeds 0.5 (the stop label is
+   a function of the speed: a model that never sees it cannot know it); the path still steers;
 4. the CAV named in each communication sentence becomes that CAV's partner from the next tick
    (:meth:`next_partners`; -1, the default closest CAV in front, when it names none).
 
@@ -105,9 +107,10 @@ class V2VVLAAgent(Agent):
         CAV's own occupancy instead of the merged one (no partner information in the image).
         ``camera_jpeg=False`` feeds the raw camera render instead of the dataset's JPEG round trip
         (which training saw; ~0.3 ms per CAV and tick, docs/model.md, "Row contract").
-        ``desired_speed``, for a model with a speed query (whose stop probability always decides go/stop):
-        ``"query"`` drives toward its predicted target speed, ``"waypoints"`` toward the speed SimLingo's
-        controller reads from its speed waypoints (docs/model.md, "Go/stop")."""
+        ``desired_speed``, for a model with a speed query: ``"query"`` drives toward its predicted speed
+        (go/stop as in the module docstring), ``"waypoints"`` toward the speed SimLingo's controller
+        reads from its speed waypoints, braking where the stop probability exceeds 0.5 (docs/model.md,
+        "Go/stop")."""
         if language_every < 1:
             raise ValueError(f"language_every must be >= 1 tick, got {language_every}")
         if bev not in ("merged", "own"):
@@ -183,9 +186,11 @@ class V2VVLAAgent(Agent):
         speed_wp = pred.speed_waypoints.float().cpu().numpy().astype(np.float64)  # (n, 10, 2)
         target_speed = stop = None
         if pred.target_speed is not None and pred.stop_prob is not None:  # go/stop from the speed query
+            stop = pred.stop_prob.float().cpu().numpy() > STOP_PROBABILITY
             if self.desired_speed == "query":
                 target_speed = pred.target_speed.float().cpu().numpy().astype(np.float64)
-            stop = pred.stop_prob.float().cpu().numpy() > STOP_PROBABILITY
+                if not self.model.config.speed_in_prompt:  # the brake rule on its speed alone
+                    stop = np.zeros(len(idx), bool)
         steer, throttle, brake = self.controller(
             idx, np.asarray(obs.speed, np.float64), path, speed_wp, target_speed, stop
         )
