@@ -13,6 +13,10 @@ browser's DOM). What it holds:
   a table, and per route with a log (``eval --record``) the command that replays it and a link to the log
   (and to the video, when ``cmudrive replay LOG -o LOG.mp4`` has made one beside it).
 
+``bench`` imports ``cmudrive.viz.infraction_map`` here, one of the few imports that run up a layer
+(``docs/architecture.md``): the page belongs with the run records it reads and compares, and its town maps
+are drawn by ``viz``'s infraction-map drawing rather than a second copy of it.
+
 With one run the single-run outputs of :func:`cmudrive.bench.report.write_report` (``summary.md``, CSV
 tables, three charts) are written too, as before. Text from records and manifests is HTML-escaped.
 """
