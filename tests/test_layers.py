@@ -47,12 +47,6 @@ ALLOWED_UPWARD: tuple[tuple[str, str, str], ...] = (
         "one row contract: collection builds the model's input rows with the module the closed-loop agent "
         "uses (DESIGN.md); model.row needs only data.schema, so there is no circle",
     ),
-    (
-        "cmudrive.bench.compare_report",
-        "cmudrive.viz.infraction_map",
-        "the comparison page (bench: it reads run records) draws its per-town infraction maps with viz's "
-        "map drawing",
-    ),
 )
 
 # the one circle between files: RoadMap.index builds the LaneIndex lazily (a function-level import in

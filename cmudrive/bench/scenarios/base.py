@@ -29,7 +29,7 @@ from typing import ClassVar
 import numpy as np
 
 from cmudrive.bench.criteria import RouteCriteria
-from cmudrive.bench.routes import TRIGGER_TOLERANCE, ScenarioSpec
+from cmudrive.bench.route_spec import TRIGGER_TOLERANCE, ScenarioSpec
 from cmudrive.bench.scenarios.params import Param, ScenarioError, parse_params
 from cmudrive.bench.scenarios.placement import LanePoint, heading, point_xy, walk
 from cmudrive.bench.scenarios.plan import PlanItem, point
