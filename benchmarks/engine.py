@@ -41,10 +41,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's 
 
 from cmudrive.agents.autopilot import LaneFollowingAutopilot
 from cmudrive.maps import load_map, resolve_map_path
-from cmudrive.sim.background import BackgroundActivity, BackgroundConfig
+from cmudrive.sim.background import BackgroundConfig
 from cmudrive.sim.dynamics import Controls
+from cmudrive.sim.populated import populated_world
 from cmudrive.sim.sumo import start_sumo
-from cmudrive.sim.world import World, WorldConfig
+from cmudrive.sim.world import WorldConfig
 from cmudrive.viz.demo import demo_routes
 
 WARMUP_TICKS = 40
@@ -108,11 +109,7 @@ def run_world(
     config = BackgroundConfig(
         vehicles=vehicles, pedestrians=pedestrians, radius=250.0, pedestrian_radius=150.0
     )
-    with World(WorldConfig(town=town, seed=seed), road_map=road_map) as world:
-        for route in routes:
-            world.add_cav(route)
-        world.background = BackgroundActivity(config)
-        world.background.populate(world)
+    with populated_world(WorldConfig(town=town, seed=seed), road_map, routes, config) as world:
         pilot = LaneFollowingAutopilot(road_map, routes)
         snap = world.snapshot()
         elapsed = 0.0

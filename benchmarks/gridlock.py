@@ -26,9 +26,10 @@ from rich.progress import track
 
 from cmudrive.agents.autopilot import LaneFollowingAutopilot
 from cmudrive.maps import LanePos, RoadMap, Route, RouteError, RoutePlanner, available_towns, load_map
-from cmudrive.sim.background import BackgroundActivity, BackgroundConfig
+from cmudrive.sim.background import BackgroundConfig
+from cmudrive.sim.populated import background_stats, populated_world
 from cmudrive.sim.snapshot import ActorKind, Role
-from cmudrive.sim.world import World, WorldConfig
+from cmudrive.sim.world import WorldConfig
 
 SAMPLE = 10  # [ticks] standstills are sampled every 0.5 s
 AWAY = 60.0  # [m] from every CAV: the background activity's out-of-sight distance
@@ -74,11 +75,7 @@ def run_town(town: str, minutes: float, seed: int) -> dict[str, float]:
     cav_longest = np.zeros(4)
     cav_standing = np.zeros(4)
     started = time.perf_counter()
-    with World(WorldConfig(town=town, seed=seed), road_map=road_map) as world:
-        for route in routes:
-            world.add_cav(route)
-        world.background = BackgroundActivity(config)
-        world.background.populate(world)
+    with populated_world(WorldConfig(town=town, seed=seed), road_map, routes, config) as world:
         pilot = LaneFollowingAutopilot(road_map, routes)
         snap = world.snapshot()
         for tick in track(range(ticks), description=town, transient=True):
@@ -104,7 +101,7 @@ def run_town(town: str, minutes: float, seed: int) -> dict[str, float]:
             still = np.abs(snap.speed[rows]) < STAND_SPEED
             cav_standing[index] = np.where(still, cav_standing[index] + SAMPLE * 0.05, 0.0)
             cav_longest = np.maximum(cav_longest, cav_standing)
-        stats = dict(world.background.stats)
+        stats = background_stats(world)
     values = np.array(list(longest.values()) or [0.0])
     values_away = np.array(list(longest_away.values()) or [0.0])
     return {

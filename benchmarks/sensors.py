@@ -31,10 +31,11 @@ from cmudrive.maps import LaneKind, RoadMap, StopKind, load_map, load_scenery
 from cmudrive.maps.scenery import StaticScenery
 from cmudrive.sensors import PerceptionFrame, SimulatedOccupancy, compute_visibility
 from cmudrive.sensors.camera import CameraConfig, FrontCamera
-from cmudrive.sim.background import BackgroundActivity, BackgroundConfig
+from cmudrive.sim.background import BackgroundConfig
+from cmudrive.sim.populated import populated_world
 from cmudrive.sim.snapshot import ActorKind, Role, Snapshot
 from cmudrive.sim.weather import WEATHERS, get_weather
-from cmudrive.sim.world import World, WorldConfig
+from cmudrive.sim.world import WorldConfig
 from cmudrive.v2v import V2VNetwork
 from cmudrive.viz.demo import demo_routes
 
@@ -46,11 +47,7 @@ def record_snapshots(road_map: RoadMap, ticks: int, cavs: int, seed: int) -> lis
     routes = demo_routes(road_map, cavs, np.random.default_rng(seed))
     config = BackgroundConfig(vehicles=100, pedestrians=50, radius=250.0, pedestrian_radius=150.0)
     snaps = []
-    with World(WorldConfig(town=road_map.name, seed=seed), road_map=road_map) as world:
-        for route in routes:
-            world.add_cav(route)
-        world.background = BackgroundActivity(config)
-        world.background.populate(world)
+    with populated_world(WorldConfig(town=road_map.name, seed=seed), road_map, routes, config) as world:
         pilot = LaneFollowingAutopilot(road_map, routes)
         snap = world.snapshot()
         for k in range(WARMUP_TICKS + ticks):

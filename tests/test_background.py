@@ -13,7 +13,8 @@ import pytest
 
 from cmudrive.maps import LaneKind, LanePos, RoadMap, RoutePlanner, available_towns, load_map
 from cmudrive.sim.actor_types import ACTOR_TYPES
-from cmudrive.sim.background import BackgroundActivity, BackgroundConfig, upstream_windows
+from cmudrive.sim.background import BackgroundActivity, BackgroundConfig
+from cmudrive.sim.background_geometry import upstream_windows
 from cmudrive.sim.dynamics import Controls
 from cmudrive.sim.snapshot import ActorKind, Role, Snapshot
 from cmudrive.sim.world import World, WorldConfig

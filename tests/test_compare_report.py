@@ -18,7 +18,6 @@ from matplotlib.figure import Figure
 from typer.testing import CliRunner
 
 from cmudrive.bench.compare import Stat, compare, mean_std
-from cmudrive.bench.compare_report import infraction_points, write_comparison
 from cmudrive.bench.metrics import route_result
 from cmudrive.bench.records import (
     INFRACTION_KEYS,
@@ -33,6 +32,7 @@ from cmudrive.bench.records import (
 from cmudrive.bench.report import EMPTY
 from cmudrive.bench.runs import RunError, group_runs, load_run
 from cmudrive.cli import app
+from cmudrive.viz.compare_report import infraction_points, write_comparison
 from cmudrive.viz.infraction_map import GID_PREFIX, draw_infractions
 
 ROUTE_SET = "f" * 64  # the manifest's hash of the route set

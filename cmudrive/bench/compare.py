@@ -2,7 +2,7 @@
 CAV count, weather), per group of seeds their mean and sample standard deviation.
 
 Pure functions over the records (``records.RouteResult``) of :mod:`cmudrive.bench.runs`; the page and the
-charts that show them are :mod:`cmudrive.bench.compare_report`.
+charts that show them are :mod:`cmudrive.viz.compare_report`.
 
 - **Overall** numbers are ``metrics.summarize`` with the run's expected route count (missing routes count
   0, as in ``results.json``): DS, SR, RC, IS, efficiency, comfortness, the multi-ability mean.

@@ -57,8 +57,9 @@ from cmudrive.bench.records import (
 from cmudrive.bench.routes import RouteSpec
 from cmudrive.bench.scenarios import ScenarioConfig, ScenarioError, ScenarioManager, build_scenarios
 from cmudrive.maps import MapError, RoadMap, Route, load_map, load_scenery
-from cmudrive.sim.background import BackgroundActivity, BackgroundConfig
+from cmudrive.sim.background import BackgroundConfig
 from cmudrive.sim.dynamics import ControlError, Controls, check_controls
+from cmudrive.sim.populated import populated_world
 from cmudrive.sim.snapshot import Role, Snapshot
 from cmudrive.sim.world import World, WorldConfig
 
@@ -158,11 +159,7 @@ def _run_route(
     declared = check_observations(agent)
     privileged = Observation.PRIVILEGED in declared
     world_config = WorldConfig(town=str(town_path), seed=spec.seed, weather=spec.weather)
-    with World(world_config, road_map=road_map) as world:
-        for route in routes:
-            world.add_cav(route)
-        world.background = BackgroundActivity(config.background)
-        world.background.populate(world)
+    with populated_world(world_config, road_map, routes, config.background) as world:
         cav_ids = list(world.cav_ids)
         scenery = load_scenery(road_map)  # what CAVs can hit and what hides actors from cameras
         criteria = RouteCriteria(road_map, routes, cav_ids, config.criteria, DT, scenery=scenery)

@@ -14,7 +14,7 @@ summarises them (``metrics.summarize``) into::
 Charts are drawn with matplotlib's Agg canvas (no pyplot state), 150 dpi. A group without routes (a scenario
 type, ability or weather no route has) is left out of every table and chart alike; routes without a scenario
 are the type "(none)". ``cmudrive report`` writes these for one run beside its comparison page
-(:mod:`cmudrive.bench.compare_report`).
+(:mod:`cmudrive.viz.compare_report`).
 
 Records are validated when read (``RouteResult.from_json``: ranges, statuses, consistency); a bad one is
 a ``ResultsError`` naming the file and the record. Text from the records is written inertly: markdown

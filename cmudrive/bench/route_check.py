@@ -28,7 +28,8 @@ from typing import Any
 
 import numpy as np
 
-from cmudrive.bench.routes import TRIGGER_TOLERANCE, RouteSpec, read_routes
+from cmudrive.bench.route_spec import TRIGGER_TOLERANCE
+from cmudrive.bench.routes import RouteSpec, read_routes
 from cmudrive.maps import MapError, RoadMap, Route, RouteError, load_map
 
 

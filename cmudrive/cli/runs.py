@@ -27,7 +27,7 @@ def report(
     """An HTML page (OUTPUT/index.html, opens from disk) comparing runs: seeds of one setup as mean ± std,
     DS/SR/RC/IS overall and per ability, scenario type, CAV count and weather, infraction maps, replays.
     With one run also summary.md, CSV tables and the single-run charts. Runs must share a route set."""
-    from cmudrive.bench.compare_report import write_comparison
+    from cmudrive.viz.compare_report import write_comparison
 
     try:
         paths = write_comparison(runs, output)

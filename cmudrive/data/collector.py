@@ -9,7 +9,10 @@ visibility, occupancy and V2V merge cost nothing on the other four ticks of five
 
 The model's input columns (camera, merged BEV, speed, target points, other CAVs) come from
 :class:`cmudrive.model.row.RowBuilder`, the row contract the closed-loop agent builds its rows with too;
-its target points follow each CAV's progress along the sparse plan, advanced every tick.
+its target points follow each CAV's progress along the sparse plan, advanced every tick. This is why
+``data`` imports ``cmudrive.model.row``, one of the few imports that run up a layer
+(``docs/architecture.md``): the rows collected must be the very rows the model is fed in closed loop, and
+the contract lives beside the model; ``model.row`` needs only ``data.schema`` below it: no circle.
 
 Labels need the future (the path the CAV drives next, its positions 2.5 s on, the expert's target speed
 over the next 1.25 s for the language), so a sample tick is kept in memory, its images already encoded,

@@ -25,20 +25,9 @@ tests are numpy over the points. Vehicles drive a route that SUMO's router finds
 replays identically. Spawning and removal run every ``update_period`` ticks; nothing runs on the ticks
 in between.
 
-Commands (Bench2Drive's BA commands; each takes effect immediately, works on vehicles only, and touches
-only actors whose role is :attr:`Role.BACKGROUND`, never CAVs, scenario actors or props; lanes are map
-lane indices, and a command before :meth:`BackgroundActivity.populate` raises ``RuntimeError``):
-
-==========================================  =========================================================
-method                                      Bench2Drive
-==========================================  =========================================================
-``leave_space(cav, d)``                     ``LeaveSpace`` (we delete the cars; B2D moves them ahead)
-``remove_lane(lanes)``/``readd_lane``       ``RemoveLane`` / ``ReAddLane``
-``stop_lane(lanes)``/``release_lane``       ``StopFront``/``StartFront``, ``StopBack``/``StartBack`` (by lane)
-``opposite_traffic(enabled)``               ``OppOff`` / ``OppOn``
-``clear_junction(j, approach)``             ``Junction{clear}`` (interior and entries of a junction)
-``max_speed(v)``                            ``MaxSpeed`` (B2D takes km/h; we take m/s)
-==========================================  =========================================================
+Commands (Bench2Drive's BA commands: ``leave_space``, ``remove_lane``, ``stop_lane``, ``opposite_traffic``,
+``clear_junction``, ``max_speed`` ...) are :mod:`cmudrive.sim.background_commands`; scenarios type against its
+:class:`~cmudrive.sim.background_commands.BackgroundCommands`.
 
 How this differs from Bench2Drive's background activity, which steers CARLA's Traffic Manager with
 per-lane *sources* around the ego (2 cars ahead and 2 behind in each same-direction lane at 15 m spacing,
@@ -58,18 +47,29 @@ no lane changes:
 
 from __future__ import annotations
 
-from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
-import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
 from cmudrive.maps.index import wrap_angle
-from cmudrive.maps.model import LaneKind, RoadMap
+from cmudrive.maps.model import LaneKind
 from cmudrive.sim.actor_types import ACTOR_TYPES, BACKGROUND_VEHICLE_MIX
-from cmudrive.sim.snapshot import ActorKind, Role, Snapshot
+from cmudrive.sim.background_commands import CommandsMixin
+from cmudrive.sim.background_geometry import (
+    CavPoses,
+    Pending,
+    Scene,
+    SpawnPoints,
+    active_cavs,
+    behind_a_cav,
+    build_scene,
+    lane_points,
+    live_vehicles,
+    nearest_point,
+)
+from cmudrive.sim.snapshot import Role
 from cmudrive.sim.sumo import SumoError
 
 if TYPE_CHECKING:
@@ -149,87 +149,7 @@ class SpawnRecord:
     initial: bool  # part of the initial fill
 
 
-@dataclass(frozen=True)
-class SpawnPoints:
-    """Candidate spawn points on lanes, ``M`` of them, precomputed once per map."""
-
-    xy: np.ndarray  # (M, 2) float64 [m]
-    lane: np.ndarray  # (M,) int64 map lane index
-    s: np.ndarray  # (M,) float64 arc length along the lane [m]
-    heading: np.ndarray  # (M,) float64 lane heading [rad]
-    slot: np.ndarray  # (M,) int64 number of the point along its lane (0, 1, ...)
-
-
-def upstream_windows(road_map: RoadMap, lane: int, s: float, reach: float) -> list[tuple[int, float, float]]:
-    """(lane, s_from, s_to) stretches of lane within ``reach`` metres upstream of position ``s`` on
-    ``lane``, following predecessor lanes (internal lanes included) back through junctions."""
-    out = [(lane, max(s - reach, 0.0), s)]
-    todo = [(int(p), reach - s) for p in road_map.predecessors(lane)] if reach > s else []
-    seen = {lane}
-    while todo:
-        up, left = todo.pop()
-        if up in seen or left <= 0.0:
-            continue
-        seen.add(up)
-        length = float(road_map.lane_length[up])
-        out.append((up, max(length - left, 0.0), length))
-        if left > length:
-            todo.extend((int(p), left - length) for p in road_map.predecessors(up))
-    return out
-
-
-def lane_points(road_map: RoadMap, lanes: np.ndarray, spacing: float, end_margin: float) -> SpawnPoints:
-    """Points every ``spacing`` m along each lane (first at spacing / 2), >= ``end_margin`` from its end."""
-    lanes = np.asarray(lanes, np.int64)
-    room = road_map.lane_length[lanes] - end_margin - 0.5 * spacing
-    count = np.where(room >= 0.0, np.floor(np.maximum(room, 0.0) / spacing).astype(np.int64) + 1, 0)
-    lane = np.repeat(lanes, count)
-    slot = np.arange(len(lane)) - np.repeat(np.cumsum(count) - count, count)
-    s = (slot + 0.5) * spacing
-    xy = road_map.index.frenet_to_xy(lane, s) if len(lane) else np.zeros((0, 2))
-    heading = road_map.index.heading_at(lane, s) if len(lane) else np.zeros(0)
-    return SpawnPoints(xy, lane, s, heading, slot)
-
-
-@dataclass
-class _Cavs:
-    """Active CAV poses, ``C`` rows."""
-
-    xy: np.ndarray  # (C, 2) [m]
-    yaw: np.ndarray  # (C,) [rad]
-    speed: np.ndarray  # (C,) [m/s]
-
-
-@dataclass
-class _Scene:
-    """Every actor of the last snapshot plus our spawns SUMO has not inserted yet, ``A`` rows."""
-
-    ids: list[str]
-    xy: np.ndarray  # (A, 2) [m] centre (spawn point for not-yet-inserted spawns)
-    yaw: np.ndarray  # (A,) [rad]
-    speed: np.ndarray  # (A,) [m/s], NaN for spawns not inserted yet
-    length: np.ndarray  # (A,) [m]
-    lane: np.ndarray  # (A,) int64 map lane, -1 off the network
-    person: np.ndarray  # (A,) bool
-    background: np.ndarray  # (A,) bool, a SUMO actor with role BACKGROUND: ours to remove or command
-    alive: np.ndarray  # (A,) bool, False once removed during this update
-    cav_dist: np.ndarray  # (A,) [m] distance to the nearest active CAV (inf without CAVs)
-    cav_near: np.ndarray  # (A,) int64 row of that CAV in _Cavs
-
-
-@dataclass
-class _Pending:
-    """A spawn that SUMO has not shown in a snapshot yet."""
-
-    time: float  # [s]
-    xy: np.ndarray  # (2,) [m]
-    yaw: float  # [rad]
-    lane: int
-    length: float  # [m]
-    person: bool
-
-
-class BackgroundActivity:
+class BackgroundActivity(CommandsMixin):
     """Background traffic and pedestrians around the CAVs of one world.
 
     Usage::
@@ -260,7 +180,7 @@ class BackgroundActivity:
         shares = np.array([self.config.vehicle_mix[t] for t in self._types], np.float64)
         self._type_p = shares / shares.sum()
         self._n_spawned = 0
-        self._pending: dict[str, _Pending] = {}
+        self._pending: dict[str, Pending] = {}
         self._deadlocked_since: dict[str, float] = {}  # [s] background actor id -> since when it blocks
         self._type_of: dict[str, str] = {}  # our vehicles' type names
         self._stopped_since: dict[str, float] = {}  # vehicle -> time it was first seen stopped [s]
@@ -314,7 +234,7 @@ class BackgroundActivity:
     def populate(self, world: World) -> None:
         """Initial fill: up to the targets anywhere within the radii, >= ``fill_clearance`` from every CAV."""
         self._bind(world)
-        cavs = _active_cavs(world)
+        cavs = active_cavs(world)
         if len(cavs.xy) == 0:
             return
         scene = self._scene(world, cavs)
@@ -326,7 +246,7 @@ class BackgroundActivity:
         self._bind(world)
         if world.step_count % self.config.update_period:
             return
-        cavs = _active_cavs(world)
+        cavs = active_cavs(world)
         if len(cavs.xy) == 0:
             return
         scene = self._scene(world, cavs)
@@ -341,11 +261,11 @@ class BackgroundActivity:
         self._spawn_pedestrians(world, scene, cavs, initial=False)
 
     # ------------------------------------------------------------------ scene
-    def _scene(self, world: World, cavs: _Cavs) -> _Scene:
+    def _scene(self, world: World, cavs: CavPoses) -> Scene:
         snap = world.last_snapshot if world.last_snapshot is not None else world.snapshot()
-        return _build_scene(snap, world, self._pending, cavs)
+        return build_scene(snap, world, self._pending, cavs)
 
-    def _remove(self, world: World, scene: _Scene, rows: np.ndarray, counter: str) -> int:
+    def _remove(self, world: World, scene: Scene, rows: np.ndarray, counter: str) -> int:
         """Remove the actors of scene ``rows`` (background only) from SUMO and forget them."""
         rows = rows[scene.alive[rows] & scene.background[rows]]
         for r in rows.tolist():
@@ -359,12 +279,8 @@ class BackgroundActivity:
         self.stats[counter] += len(rows)
         return len(rows)
 
-    def _vehicles(self, scene: _Scene) -> np.ndarray:
-        """Scene rows of live background vehicles."""
-        return np.flatnonzero(scene.alive & scene.background & ~scene.person)
-
     # ------------------------------------------------------------------ removal
-    def _settle_spawns(self, world: World, scene: _Scene) -> None:
+    def _settle_spawns(self, world: World, scene: Scene) -> None:
         """Forget spawns that appeared (or already left); drop those SUMO could not insert in time."""
         import libsumo
 
@@ -382,14 +298,14 @@ class BackgroundActivity:
             index = {a: i for i, a in enumerate(scene.ids)}
             self._remove(world, scene, np.array([index[a] for a in late], np.int64), "dropped")
 
-    def _remove_far(self, world: World, scene: _Scene) -> None:
+    def _remove_far(self, world: World, scene: Scene) -> None:
         cfg = self.config
         limit = np.where(scene.person, cfg.pedestrian_radius, cfg.radius) + cfg.removal_margin
         self._remove(world, scene, np.flatnonzero(scene.cav_dist > limit), "removed_far")
 
-    def _remove_stuck(self, world: World, scene: _Scene) -> None:
+    def _remove_stuck(self, world: World, scene: Scene) -> None:
         cfg = self.config
-        rows = self._vehicles(scene)
+        rows = live_vehicles(scene)
         now = world.time
         stopped = scene.speed[rows] < cfg.stuck_speed  # NaN (not inserted yet) compares False
         since = self._stopped_since
@@ -410,7 +326,7 @@ class BackgroundActivity:
         ]
         self._remove(world, scene, np.array(stuck, np.int64), "removed_stuck")
 
-    def _break_deadlocks(self, world: World, scene: _Scene, cavs: _Cavs) -> None:
+    def _break_deadlocks(self, world: World, scene: Scene, cavs: CavPoses) -> None:
         """Remove background actors that stood ``deadlock_time`` inside a junction (or on a crossing) just
         ahead of a standing CAV (see ``BackgroundConfig.deadlock_time``)."""
         cfg, m, snap = self.config, world.map, world.last_snapshot
@@ -445,9 +361,9 @@ class BackgroundActivity:
         for r in stale:
             since.pop(scene.ids[r], None)
 
-    def _remove_opposite(self, world: World, scene: _Scene, cavs: _Cavs, min_distance: float) -> int:
+    def _remove_opposite(self, world: World, scene: Scene, cavs: CavPoses, min_distance: float) -> int:
         """Remove vehicles heading against their nearest CAV, ahead of it, within the radius."""
-        rows = self._vehicles(scene)
+        rows = live_vehicles(scene)
         rows = rows[(scene.cav_dist[rows] <= self.config.radius) & (scene.cav_dist[rows] >= min_distance)]
         k = scene.cav_near[rows]
         against = np.abs(wrap_angle(scene.yaw[rows] - cavs.yaw[k])) > OPPOSITE_HEADING
@@ -455,25 +371,12 @@ class BackgroundActivity:
         ahead = rel[:, 0] * np.cos(cavs.yaw[k]) + rel[:, 1] * np.sin(cavs.yaw[k]) > 0.0
         return self._remove(world, scene, rows[against & ahead], "removed_command")
 
-    def _halt_on_stopped_lanes(self, scene: _Scene) -> None:
-        if not self._stopped_lanes:
-            return
-        import libsumo
-
-        rows = self._vehicles(scene)
-        on = rows[np.isin(scene.lane[rows], list(self._stopped_lanes))]
-        for r in on.tolist():
-            actor_id = scene.ids[r]
-            if actor_id not in self._halted:
-                self._halted[actor_id] = int(scene.lane[r])
-            libsumo.vehicle.setSpeed(actor_id, 0.0)  # re-applied: a collision hold may have released it
-
     # ------------------------------------------------------------------ spawning
     def _candidates(
         self,
         points: SpawnPoints,
-        scene: _Scene,
-        cavs: _Cavs,
+        scene: Scene,
+        cavs: CavPoses,
         radius: float,
         min_distance: float,
         clearance: float,
@@ -484,7 +387,7 @@ class BackgroundActivity:
         """Indices of usable spawn points and their distance to the nearest CAV [m]."""
         # the nearest CAV of every point, kept within `radius` of it; one compiled loop over points x CAVs
         # (~40 us for ~2000 points and 16 CAVs; a query on a KD-tree of the CAVs took ~240 us)
-        nearest, dist = _nearest_point(points.xy, cavs.xy)
+        nearest, dist = nearest_point(points.xy, cavs.xy)
         idx = np.flatnonzero(dist <= radius)
         dist, nearest = dist[idx], nearest[idx]
         # every other slot of a lane this update, so two spawns of one batch are >= 2 spacings apart
@@ -505,9 +408,9 @@ class BackgroundActivity:
             idx, dist = idx[free], dist[free]
         return idx, dist
 
-    def _spawn_vehicles(self, world: World, scene: _Scene, cavs: _Cavs, initial: bool) -> None:
+    def _spawn_vehicles(self, world: World, scene: Scene, cavs: CavPoses, initial: bool) -> None:
         cfg = self.config
-        rows = self._vehicles(scene)
+        rows = live_vehicles(scene)
         want = cfg.vehicles - int(np.count_nonzero(scene.cav_dist[rows] <= cfg.radius))
         if not initial:
             want = min(want, cfg.max_spawns_per_update)
@@ -526,7 +429,9 @@ class BackgroundActivity:
             True,
             rng,
         )
-        keep = ~self._behind_a_cav(pts, idx, cavs)
+        keep = ~behind_a_cav(
+            world.map, pts, idx, cavs, cfg.fill_decel, cfg.fill_stop_gap, cfg.fill_behind_width
+        )
         idx, dist = idx[keep], dist[keep]
         types = rng.choice(len(self._types), size=want, p=self._type_p)
         counts = np.bincount(types, minlength=len(self._types))
@@ -539,47 +444,6 @@ class BackgroundActivity:
             free[pick] = False
             for j in pick.tolist():
                 self._add_vehicle(world, self._types[t], int(idx[j]), float(dist[j]), initial)
-
-    def _behind_a_cav(self, pts: SpawnPoints, idx: np.ndarray, cavs: _Cavs) -> np.ndarray:
-        """(k,) spawn points ``idx`` from which a vehicle at the lane's speed could not slow down to the
-        speed of a CAV ahead of it on its road before reaching it (see ``fill_decel``)."""
-        cfg, m = self.config, self._need_world().map
-        if len(idx) == 0 or len(cavs.xy) == 0:
-            return np.zeros(len(idx), bool)
-        rel = cavs.xy[None, :, :] - pts.xy[idx, None, :]  # (k, C, 2)
-        # along the chord: the mean of the two headings, the chord's direction on a circular arc (the
-        # spawn point's heading alone put a car 32 m behind a CAV on Town04's curved highway 8.4 m "aside")
-        h_pt, h_cav = pts.heading[idx][:, None], cavs.yaw[None, :]
-        chord = np.arctan2(np.sin(h_pt) + np.sin(h_cav), np.cos(h_pt) + np.cos(h_cav))
-        c, s = np.cos(chord), np.sin(chord)
-        along = rel[..., 0] * c + rel[..., 1] * s
-        across = -rel[..., 0] * s + rel[..., 1] * c
-        speed = m.lane_speed[pts.lane[idx]][:, None]
-        closing = np.maximum(speed**2 - cavs.speed[None, :] ** 2, 0.0)
-        reach = closing / (2.0 * cfg.fill_decel) + cfg.fill_stop_gap
-        same_way = np.cos(cavs.yaw[None, :] - pts.heading[idx][:, None]) > 0.5
-        near = ((along > 0.0) & (along < reach) & (np.abs(across) < cfg.fill_behind_width) & same_way).any(
-            axis=1
-        )
-        return near | self._upstream_of_a_cav(pts, idx, cavs)
-
-    def _upstream_of_a_cav(self, pts: SpawnPoints, idx: np.ndarray, cavs: _Cavs) -> np.ndarray:
-        """(k,) spawn points ``idx`` on the lanes that lead to a CAV's lane (the lane graph walked back),
-        closer to it along them than a car at that lane's speed needs to slow to the CAV's speed: on a
-        bend turning 70 deg within 30 m the geometric test above does not see such a point as behind."""
-        cfg, m = self.config, self._need_world().map
-        out = np.zeros(len(idx), bool)
-        on = m.index.nearest_lane(cavs.xy, heading=cavs.yaw, max_distance=3.0)
-        lane_of_pt, s_of_pt = pts.lane[idx], pts.s[idx]
-        for c in np.flatnonzero(on.lane >= 0).tolist():
-            lane = int(on.lane[c])
-            speed = float(m.lane_speed[lane])
-            reach = (
-                max(speed**2 - float(cavs.speed[c]) ** 2, 0.0) / (2.0 * cfg.fill_decel) + cfg.fill_stop_gap
-            )
-            for up, lo, hi in upstream_windows(m, lane, float(on.s[c]), reach):
-                out |= (lane_of_pt == up) & (s_of_pt >= lo) & (s_of_pt <= hi)
-        return out
 
     def _add_vehicle(
         self, world: World, type_name: str, point: int, cav_distance: float, initial: bool
@@ -630,7 +494,7 @@ class BackgroundActivity:
                 return list(route.edges)
         return [edge]
 
-    def _spawn_pedestrians(self, world: World, scene: _Scene, cavs: _Cavs, initial: bool) -> None:
+    def _spawn_pedestrians(self, world: World, scene: Scene, cavs: CavPoses, initial: bool) -> None:
         cfg = self.config
         rows = np.flatnonzero(scene.alive & scene.background & scene.person)
         want = cfg.pedestrians - int(np.count_nonzero(scene.cav_dist[rows] <= cfg.pedestrian_radius))
@@ -703,7 +567,7 @@ class BackgroundActivity:
         person: bool,
     ) -> None:
         xy, heading, lane = pts.xy[point], float(pts.heading[point]), int(pts.lane[point])
-        self._pending[actor_id] = _Pending(world.time, xy.copy(), heading, lane, length, person)
+        self._pending[actor_id] = Pending(world.time, xy.copy(), heading, lane, length, person)
         self.spawns.append(
             SpawnRecord(
                 world.time,
@@ -720,205 +584,8 @@ class BackgroundActivity:
         self.stats["spawned"] += 1
         self.stats["spawned_pedestrians" if person else "spawned_vehicles"] += 1
 
-    # ------------------------------------------------------------------ commands
-    def _command_scene(self) -> tuple[World, _Scene, _Cavs]:
-        world = self._need_world()
-        cavs = _active_cavs(world)
-        return world, self._scene(world, cavs), cavs
-
-    def leave_space(self, cav_index: int, distance: float) -> int:
-        """Bench2Drive ``LeaveSpace``: remove background vehicles ahead of CAV ``cav_index`` in its lane
-        corridor (its lane and every lane reachable from it) up to ``distance`` [m]. Returns the count."""
-        world, scene, _ = self._command_scene()
-        if not world.cav_active[cav_index]:
-            return 0
-        m, st = world.map, world.cav_state
-        pos = np.array([st.x[cav_index], st.y[cav_index]])
-        yaw = float(st.yaw[cav_index])
-        proj = m.index.nearest_lane(pos[None], heading=yaw)
-        lane = int(proj.lane[0])
-        rows = self._vehicles(scene)
-        # straight corridor in the CAV frame: catches vehicles straddling lanes (sublane model)
-        rel = scene.xy[rows] - pos
-        lon = rel[:, 0] * np.cos(yaw) + rel[:, 1] * np.sin(yaw)
-        lat = -rel[:, 0] * np.sin(yaw) + rel[:, 1] * np.cos(yaw)
-        half_width = 0.5 * float(m.lane_width[lane]) if lane >= 0 else 1.75
-        half_len = 0.5 * scene.length[rows]
-        hit = (lon > 0.0) & (lon - half_len <= distance) & (np.abs(lat) <= half_width)
-        if lane >= 0:  # along the lane graph: follows curves and junction paths
-            start = _lane_offsets(m, lane, float(proj.s[0]), distance)
-            on = np.flatnonzero(np.isin(scene.lane[rows], list(start)))
-            if len(on):
-                s, _ = m.index.project(scene.xy[rows[on]], scene.lane[rows[on]])
-                ahead = np.array([start[int(ln)] for ln in scene.lane[rows[on]].tolist()]) + s
-                hit[on] |= (ahead > 0.0) & (ahead - half_len[on] <= distance)
-        return self._remove(world, scene, rows[hit], "removed_command")
-
-    def remove_lane(self, lanes: Iterable[int]) -> int:
-        """Bench2Drive ``RemoveLane``: delete background vehicles on these map lanes, stop spawning there."""
-        world, scene, _ = self._command_scene()
-        lanes = [int(ln) for ln in lanes]
-        self._lane_removed[lanes] = True
-        rows = self._vehicles(scene)
-        return self._remove(world, scene, rows[np.isin(scene.lane[rows], lanes)], "removed_command")
-
-    def readd_lane(self, lanes: Iterable[int]) -> None:
-        """Bench2Drive ``ReAddLane``: spawning on these lanes is allowed again."""
-        self._need_world()
-        self._lane_removed[[int(ln) for ln in lanes]] = False
-
-    def stop_lane(self, lanes: Iterable[int]) -> int:
-        """Bench2Drive ``StopFront``/``StopBack``: background vehicles on these lanes (now, and any that
-        drive onto them later) brake to a halt (``setSpeed(0)``) until :meth:`release_lane`."""
-        _, scene, _ = self._command_scene()
-        before = len(self._halted)
-        self._stopped_lanes.update(int(ln) for ln in lanes)
-        self._halt_on_stopped_lanes(scene)
-        return len(self._halted) - before
-
-    def release_lane(self, lanes: Iterable[int]) -> int:
-        """Bench2Drive ``StartFront``/``StartBack``: vehicles halted on these lanes drive on again."""
-        import libsumo
-
-        world = self._need_world()
-        released = {int(ln) for ln in lanes}
-        self._stopped_lanes -= released
-        go = [a for a, ln in self._halted.items() if ln in released]
-        for actor_id in go:
-            del self._halted[actor_id]
-            if actor_id in world.sumo.actors:
-                libsumo.vehicle.setSpeed(actor_id, -1.0)  # back to SUMO's own car-following
-        return len(go)
-
-    def opposite_traffic(self, enabled: bool) -> int:
-        """Bench2Drive ``OppOn``/``OppOff``. Off: no spawns on lanes running opposite (> 120 degrees) to the
-        nearest CAV, and background vehicles heading against their nearest CAV, ahead of it within the
-        radius, are removed (now; later only those out of sight). Returns the number removed now."""
-        world, scene, cavs = self._command_scene()
-        self._opposite = bool(enabled)
-        if self._opposite or len(cavs.xy) == 0:
-            return 0
-        return self._remove_opposite(world, scene, cavs, 0.0)
-
-    def clear_junction(self, junction_index: int, approach: float = 30.0) -> int:
-        """Bench2Drive ``Junction`` clear: remove background vehicles inside the junction (on its internal
-        lanes) and on its incoming lanes within ``approach`` [m] of it. Returns the count."""
-        world, scene, _ = self._command_scene()
-        m = world.map
-        rows = self._vehicles(scene)
-        lane = scene.lane[rows]
-        known = lane >= 0
-        hit = known & (m.lane_junction[np.where(known, lane, 0)] == junction_index)
-        incoming = known & ~m.lane_internal[np.where(known, lane, 0)]
-        incoming &= m.edge_to_junction[m.lane_edge[np.where(known, lane, 0)]] == junction_index
-        if incoming.any():
-            s, _ = m.index.project(scene.xy[rows[incoming]], lane[incoming])
-            hit[incoming] = m.lane_length[lane[incoming]] - s <= approach
-        return self._remove(world, scene, rows[hit], "removed_command")
-
-    def max_speed(self, v_mps: float | None) -> None:
-        """Bench2Drive ``MaxSpeed``: cap every background vehicle (and new spawns) at ``v_mps`` [m/s];
-        ``None`` restores each vehicle type's own maximum."""
-        import libsumo
-
-        _, scene, _ = self._command_scene()
-        if v_mps is not None and v_mps < 0.0:
-            raise ValueError(f"max_speed needs v_mps >= 0 or None, got {v_mps}")
-        self._speed_cap = v_mps
-        for r in self._vehicles(scene).tolist():
-            actor_id = scene.ids[r]
-            if actor_id in self._pending:  # not inserted yet: capped when it appears (_settle_spawns)
-                continue
-            if v_mps is None:
-                type_name = self._type_of.get(actor_id) or libsumo.vehicle.getTypeID(actor_id).split("@")[0]
-                cap = ACTOR_TYPES[type_name].max_speed if type_name in ACTOR_TYPES else 1e3
-            else:
-                cap = v_mps
-            libsumo.vehicle.setMaxSpeed(actor_id, max(cap, 0.0))
-
     # ------------------------------------------------------------------ queries
     def background_ids(self, world: World | None = None) -> list[str]:
         """Ids of the background actors SUMO holds now (vehicles and pedestrians, in insertion order)."""
         world = world or self._need_world()
         return [a for a, info in world.sumo.actors.items() if info.role == Role.BACKGROUND]
-
-
-# ---------------------------------------------------------------------- helpers
-def _active_cavs(world: World) -> _Cavs:
-    rows = np.flatnonzero(world.cav_active)
-    st = world.cav_state
-    return _Cavs(
-        np.stack([st.x[rows], st.y[rows]], axis=1).reshape(-1, 2), st.yaw[rows].copy(), st.speed[rows].copy()
-    )
-
-
-def _build_scene(snap: Snapshot, world: World, pending: dict[str, _Pending], cavs: _Cavs) -> _Scene:
-    """Scene rows: the snapshot's actors still in the world, then spawns that SUMO has not inserted yet."""
-    actors = world.sumo.actors
-    ids = snap.ids.tolist()
-    ours = set(world.cav_ids) | set(world.layer.ids)  # SUMO actors removed since the snapshot are dropped
-    keep = snap.valid & np.array([a in actors or a in ours for a in ids], bool)
-    rows = np.flatnonzero(keep)
-    seen = set(snap.ids[rows].tolist())
-    late = [(a, p) for a, p in pending.items() if a not in seen and a in actors]
-    ids = [ids[r] for r in rows.tolist()] + [a for a, _ in late]
-    xy = np.concatenate([snap.xy[rows], np.array([p.xy for _, p in late]).reshape(-1, 2)])
-    person = np.concatenate(
-        [snap.kind[rows] == ActorKind.PEDESTRIAN, np.array([p.person for _, p in late], bool)]
-    )
-    bg_role = int(Role.BACKGROUND)
-    background = np.array([a in actors and actors[a].role == bg_role for a in ids], bool)
-    if len(cavs.xy) and len(ids):
-        near, dist = _nearest_point(xy, cavs.xy)
-    else:
-        near, dist = np.zeros(len(ids), np.int64), np.full(len(ids), np.inf)
-    return _Scene(
-        ids=ids,
-        xy=xy,
-        yaw=np.concatenate([snap.yaw[rows], [p.yaw for _, p in late]]),
-        speed=np.concatenate([snap.speed[rows], np.full(len(late), np.nan)]),
-        length=np.concatenate([snap.length[rows], [p.length for _, p in late]]),
-        lane=np.concatenate([snap.lane[rows], np.array([p.lane for _, p in late], np.int64)]).astype(
-            np.int64
-        ),
-        person=person,
-        background=background,
-        alive=np.ones(len(ids), bool),
-        cav_dist=dist,
-        cav_near=near,
-    )
-
-
-@numba.njit(cache=True)
-def _nearest_point(xy: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """For each of the (n, 2) ``xy``, the row of the nearest of the (k, 2) ``points`` (the first of equals)
-    and the distance to it [m]. One compiled loop: the (n, k, 2) numpy table cost ~55 us for ~170 actors
-    and 16 CAVs."""
-    near, dist = np.zeros(xy.shape[0], np.int64), np.empty(xy.shape[0])
-    for i in range(xy.shape[0]):
-        best = np.inf
-        for j in range(points.shape[0]):
-            d2 = (xy[i, 0] - points[j, 0]) ** 2 + (xy[i, 1] - points[j, 1]) ** 2
-            if d2 < best:
-                best, near[i] = d2, j
-        dist[i] = np.sqrt(best)
-    return near, dist
-
-
-def _lane_offsets(road_map: RoadMap, lane: int, s: float, distance: float) -> dict[int, float]:
-    """Lanes reachable from (``lane``, ``s``) within ``distance`` [m] along the lane graph, each with the
-    path distance from that point to the lane's start (negative for the starting lane)."""
-    offsets = {lane: -s}
-    frontier = [lane]
-    while frontier:
-        grown: list[int] = []
-        for ln in frontier:
-            end = offsets[ln] + float(road_map.lane_length[ln])
-            if end >= distance:
-                continue
-            for nxt in road_map.successors(ln).tolist():
-                if nxt not in offsets or offsets[nxt] > end:
-                    offsets[nxt] = end
-                    grown.append(nxt)
-        frontier = grown
-    return offsets

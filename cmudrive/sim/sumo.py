@@ -1,4 +1,5 @@
-"""The libsumo session: start options, vehicle types, and reading actors into arrays.
+"""The libsumo session: start options and reading actors into arrays (the vehicle types it defines at
+start: :mod:`cmudrive.sim.sumo_types`).
 
 libsumo runs SUMO in-process and can hold one simulation per process; :func:`start_sumo` refuses to
 start a second one while one is open, and :meth:`SumoSession.close` always releases it (the world is a
@@ -32,8 +33,9 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from cmudrive.sim.actor_types import ACTOR_TYPES, ActorType
+from cmudrive.sim.actor_types import ACTOR_TYPES
 from cmudrive.sim.snapshot import SIGNAL_BRAKELIGHT, SIGNAL_EMERGENCY_BLUE, ActorKind
+from cmudrive.sim.sumo_types import define_vehicle_types
 
 SUMO_STEP = 0.05  # [s]
 LATERAL_RESOLUTION = 0.8  # [m] sublane width
@@ -511,48 +513,6 @@ def remove_from_sumo(actor_id: str, is_person: bool = False) -> None:
         pass
 
 
-def _define_types(friction: float) -> None:
-    """Create every :data:`ACTOR_TYPES` entry as a SUMO vType (deceleration scaled by road friction)."""
-    import libsumo
-
-    existing = set(libsumo.vehicletype.getIDList())
-    for t in ACTOR_TYPES.values():
-        if t.kind == ActorKind.PEDESTRIAN:
-            base = "DEFAULT_PEDTYPE"
-        elif t.kind == ActorKind.BICYCLE:
-            base = "DEFAULT_BIKETYPE"
-        else:
-            base = "DEFAULT_VEHTYPE"
-        if t.name not in existing:
-            libsumo.vehicletype.copy(base, t.name)
-        _apply_type(t, friction)
-
-
-def _apply_type(t: ActorType, friction: float) -> None:
-    import libsumo
-
-    vt = libsumo.vehicletype
-    vclass = "ignoring" if t.static else t.vclass
-    vt.setVehicleClass(t.name, vclass)
-    vt.setLength(t.name, t.length)
-    vt.setWidth(t.name, t.width)
-    vt.setHeight(t.name, t.height)
-    vt.setMaxSpeed(t.name, max(t.max_speed, 0.1))
-    vt.setMinGap(t.name, t.min_gap)
-    if t.kind != ActorKind.PEDESTRIAN:
-        vt.setAccel(t.name, max(t.accel, 0.1))
-        vt.setDecel(t.name, t.decel * friction)
-        vt.setEmergencyDecel(t.name, t.emergency_decel * friction)
-        vt.setApparentDecel(t.name, t.decel * friction)
-        vt.setTau(t.name, t.tau)
-        vt.setImperfection(t.name, t.sigma)
-    vt.setSpeedFactor(t.name, t.speed_factor)
-    vt.setSpeedDeviation(t.name, t.speed_dev)
-    vt.setColor(t.name, (*t.colour, 255))
-    for key, value in t.params.items():
-        vt.setParameter(t.name, key, value)
-
-
 def sumo_options(
     net: Path, seed: int, log_file: Path | None = None, extra: list[str] | None = None
 ) -> list[str]:
@@ -604,7 +564,7 @@ def start_sumo(
     session = SumoSession(net=Path(net), seed=seed)
     _ACTIVE.append(session)
     try:
-        _define_types(friction)
+        define_vehicle_types(friction)
     except Exception:
         session.close()
         raise

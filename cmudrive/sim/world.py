@@ -25,22 +25,20 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 from time import perf_counter
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numba
 import numpy as np
 
 from cmudrive.maps import RoadMap, Route, actor_elevation, load_map, resolve_map_path
 from cmudrive.sim.actor_types import ACTOR_TYPES, actor_type
+from cmudrive.sim.background_commands import BackgroundCommands
 from cmudrive.sim.collisions import CollisionEvents, detect_collisions
 from cmudrive.sim.dynamics import CavState, Controls, VehicleParams, step_bicycle, validate_controls
 from cmudrive.sim.snapshot import SIGNAL_BLINKER_EMERGENCY, SIGNAL_BRAKELIGHT, ActorKind, Role, Snapshot
 from cmudrive.sim.sumo import SUMO_STEP, SumoArrays, SumoSession, remove_from_sumo, start_sumo
 from cmudrive.sim.traffic_lights import TrafficLights
 from cmudrive.sim.weather import Weather, get_weather
-
-if TYPE_CHECKING:
-    from cmudrive.sim.background import BackgroundActivity
 
 TICK_PHASES = ("cavs", "sumo_step", "background", "snapshot", "collisions")  # World.timing keys [s]
 OFF_ROAD_RETURN = 3.0  # [m] a CAV out of SUMO (it was off the road) re-enters this close to a driving lane
@@ -50,6 +48,14 @@ BRAKE_LIGHT_THRESHOLD = 0.05  # brake input above which a CAV shows brake lights
 _PEDESTRIAN = int(ActorKind.PEDESTRIAN)  # plain ints in the per-tick code: enum attribute lookups are slow
 _BACKGROUND = int(Role.BACKGROUND)
 _BRAKELIGHT = np.int32(SIGNAL_BRAKELIGHT)
+
+
+class Background(BackgroundCommands, Protocol):
+    """A world's background activity as the world sees it: :meth:`World.tick` calls ``update`` after every
+    SUMO step, and scenarios give it commands. :class:`~cmudrive.sim.background.BackgroundActivity` is one;
+    this protocol is what keeps ``world`` from importing ``background`` (which reads the world)."""
+
+    def update(self, world: World) -> None: ...
 
 
 @dataclass(frozen=True)
@@ -161,7 +167,7 @@ class World:
         self.layer = LayerActors()
         self.collisions: CollisionEvents = detect_collisions(self._empty_snapshot())
         self._held: dict[str, tuple[float, float]] = {}  # SUMO actor -> (hold ends [s], speed to restore)
-        self.background: BackgroundActivity | None = None  # keeps traffic around the CAVs when set
+        self.background: Background | None = None  # keeps traffic around the CAVs when set
         self.last_snapshot: Snapshot | None = None
         self._fixed: _FixedColumns | None = None  # see _fixed_columns
         # wall-clock seconds spent per tick phase, summed over ticks (and the tick count): for profiling

@@ -20,7 +20,8 @@ from cmudrive.agents.autopilot import LaneFollowingAutopilot
 from cmudrive.agents.base import Observations
 from cmudrive.maps import RoadMap, Route, RouteError, RoutePlanner, load_map, load_scenery
 from cmudrive.maps.routing import pick_far_apart
-from cmudrive.sim.background import BackgroundActivity, BackgroundConfig
+from cmudrive.sim.background import BackgroundConfig
+from cmudrive.sim.populated import background_stats, populated_world
 from cmudrive.sim.snapshot import ActorKind, Role, Snapshot
 from cmudrive.sim.world import World, WorldConfig
 
@@ -87,11 +88,7 @@ def run_demo(
     routes = demo_routes(road_map, cavs, rng)
     stats = DemoStats(cav_distance=np.zeros(cavs))
     ticks = round(seconds / 0.05)
-    with World(WorldConfig(town=town, seed=seed), road_map=road_map) as world:
-        for route in routes:
-            world.add_cav(route)
-        world.background = BackgroundActivity(BackgroundConfig())
-        world.background.populate(world)
+    with populated_world(WorldConfig(town=town, seed=seed), road_map, routes, BackgroundConfig()) as world:
         pilot = LaneFollowingAutopilot(road_map, routes)
         renderer = None
         perceive = _Perception(world, follow or 0) if sensors else None
@@ -136,7 +133,7 @@ def run_demo(
         else:
             for _ in frames():
                 pass
-        stats.background = dict(world.background.stats)
+        stats.background = background_stats(world)
         stats.sumo_collisions = world.sumo.sumo_collisions
     return stats
 

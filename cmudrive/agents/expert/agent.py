@@ -17,6 +17,11 @@ Each tick, for every active CAV (``reference/MODEL_AND_EXPERT.md``, PDM-Lite):
 6. SimLingo's lateral controller on the path; a speed controller that tracks the commanded acceleration
    (the expert knows the vehicle model: it is privileged).
 
+Each rule of 2-4 (cruise, corridor, detour wait, junction, forecast) returns a candidate (acceleration term,
+reason, object, distance, allowed speed; :mod:`~cmudrive.agents.expert.candidates`) and ``run_step`` folds
+them in that order: the lowest acceleration sets the reason, object and distance (a later rule only where
+its term is strictly lower), and the desired speed is the lowest allowed speed of all.
+
 Each tick's decisions are kept in :attr:`ExpertAgent.decision` (:class:`ExpertDecision`): why each CAV
 slowed down (rule, object, distance), its target speed and its planned path; the dataset turns them into
 labels.
@@ -38,6 +43,7 @@ from cmudrive.agents.control import (
     nearest_ahead,
 )
 from cmudrive.agents.corridor import first_in_corridor
+from cmudrive.agents.expert.candidates import Candidate, Verdict
 from cmudrive.agents.expert.detour import Detour, DetourPlanner, DetourReason
 from cmudrive.agents.expert.forecast import Forecaster
 from cmudrive.agents.expert.plan import EntryKind, RoutePlans, build_plans
@@ -161,8 +167,37 @@ class ExpertAgent(Agent):
         normal = np.stack([-np.sin(h), np.cos(h)], axis=-1)
         path = p.xy[i[:, None], ahead] + det.offset[..., None] * normal  # (n, H, 2) shifted around obstacles
         ego_s = p.distance[i, self.progress[i]] + frac  # [m] along the route
+        unblocking = obs.tick < self.unblock_until[i]
 
-        # the speed the road allows, approached comfortably
+        # the rules in order; a later one sets accel/reason/object only where its term is strictly lower
+        cruise, first = self._cruise(i, v, frac, ahead, det)
+        verdict = Verdict.start(first)
+        corridor, followed = self._corridor(snap, rows, v, frac, half_len, path, cruise)
+        verdict.take(corridor)
+        verdict.take(self._detour_wait(det, v, cruise))
+        verdict.take(self._junction_terms(snap, i, v, ego_s, half_len, cruise, unblocking))
+        around = [np.concatenate([a, t]) for a, t in zip(det.actors, det.traffic, strict=True)]
+        verdict.take(self._forecast_term(snap, rows, i, v, path, verdict.accel, followed, around, unblocking))
+
+        # anti-blocking: standing for a forecast or a give-way too long -> ignore them for a while
+        standing = v < c.standing_speed
+        waiting = standing & np.isin(verdict.reason, [Reason.FORECAST, Reason.YIELD])
+        self.blocked_ticks[i] = np.where(waiting, self.blocked_ticks[i] + 1, 0)
+        start = self.blocked_ticks[i] >= c.unblock_after
+        self.unblock_until[i[start]] = obs.tick + c.unblock_for
+        self.blocked_ticks[i[start]] = 0
+
+        controls = self._controls(obs, pos, v, path, frac, verdict.accel)
+        self._record(snap, obs.tick, i, v, verdict, path, _detour_record(snap, rows, det))
+        return controls
+
+    # ------------------------------------------------------------------ rules
+    def _cruise(
+        self, i: np.ndarray, v: np.ndarray, frac: np.ndarray, ahead: np.ndarray, det: Detour
+    ) -> tuple[np.ndarray, Candidate]:
+        """The speed the road allows, approached comfortably (capped while passing in the oncoming lane):
+        (n,) [m/s] the cruise speed, and the rule's candidate."""
+        c, p = self.config, self.plans
         along = np.maximum(np.arange(HORIZON)[None, :] - frac[:, None], 0.0)
         allowed = p.allowed[i[:, None], ahead]
         cruise = np.sqrt(allowed**2 + 2.0 * c.approach_decel * along).min(axis=1)
@@ -171,31 +206,21 @@ class ExpertAgent(Agent):
         accel = np.clip((cruise - v) / c.speed_time_constant, -c.idm.comfort_decel, c.idm.max_accel)
         reason = np.where(cruise < allowed[:, 0] - 0.5, Reason.ROAD, Reason.NONE).astype(np.int8)
         reason = np.where(v > cruise + 0.5, Reason.ROAD, reason).astype(np.int8)
-        desired = cruise.copy()
-        n = len(i)
-        obj_row = np.full(n, -1, np.int64)
-        obj_dist = np.full(n, np.inf)
-        unblocking = obs.tick < self.unblock_until[i]
+        return cruise, Candidate(accel, reason, None, np.full(len(i), np.inf), cruise)
 
-        def take(
-            term: np.ndarray,
-            why: int | np.ndarray,
-            row: np.ndarray | None,
-            dist: np.ndarray,
-            allow: np.ndarray,
-        ) -> None:
-            nonlocal accel, reason
-            np.minimum(desired, allow, out=desired)
-            better = term < accel
-            accel = np.where(better, term, accel)
-            reason = np.where(better, why, reason).astype(np.int8)
-            if row is not None:
-                obj_row[better] = row[better]
-            else:
-                obj_row[better] = -1
-            obj_dist[better] = dist[better]
-
-        # 1. the first actor in the corridor
+    def _corridor(
+        self,
+        snap: Snapshot,
+        rows: np.ndarray,
+        v: np.ndarray,
+        frac: np.ndarray,
+        half_len: np.ndarray,
+        path: np.ndarray,
+        cruise: np.ndarray,
+    ) -> tuple[Candidate | None, np.ndarray]:
+        """IDM toward the first actor in the path corridor; (n,) its snapshot row, -1 none."""
+        c = self.config
+        n = len(rows)
         skip = snap.other_level(rows)  # bridges over the CAV's road and roads under its bridge
         skip[:, ~snap.valid] = True
         hit, hit_row = first_in_corridor(
@@ -211,76 +236,44 @@ class ExpertAgent(Agent):
             HORIZON + 10.0,
         )
         has = hit_row >= 0
-        if has.any():
-            k = np.flatnonzero(has)
-            r = hit_row[k]
-            gap = hit[k] - frac[k] - half_len[k]
-            seg = path[k, np.minimum(hit[k] + 1, HORIZON - 1)] - path[k, np.maximum(hit[k] - 1, 0)]
-            path_yaw = np.arctan2(seg[:, 1], seg[:, 0])
-            v_lead = np.maximum(snap.speed[r] * np.cos(snap.yaw[r] - path_yaw), 0.0)
-            why = reason_of_kind(snap.kind[r], snap.role[r] == Role.PROP)
-            v_lead = np.where(why == Reason.PEDESTRIAN, 0.0, v_lead)  # walkers are treated as standing
-            term = np.full(n, np.inf)
-            allow = np.full(n, np.inf)
-            whys = np.zeros(n, np.int8)
-            for w in np.unique(why):
-                sel = why == w
-                g = GAPS[Reason(int(w))]
-                term[k[sel]] = idm(v[k[sel]], cruise[k[sel]], gap[sel], v_lead[sel], g.s0, g.headway, c.idm)
-                allow[k[sel]] = allowed_speed(gap[sel], v_lead[sel], g.s0, g.headway, c.approach_decel)
-            whys[k] = why
-            rows_full = np.full(n, -1, np.int64)
-            rows_full[k] = r
-            dist_full = np.full(n, np.inf)
-            dist_full[k] = gap
-            take(term, whys, rows_full, dist_full, allow)
+        if not has.any():
+            return None, hit_row
+        k = np.flatnonzero(has)
+        r = hit_row[k]
+        gap = hit[k] - frac[k] - half_len[k]
+        seg = path[k, np.minimum(hit[k] + 1, HORIZON - 1)] - path[k, np.maximum(hit[k] - 1, 0)]
+        path_yaw = np.arctan2(seg[:, 1], seg[:, 0])
+        v_lead = np.maximum(snap.speed[r] * np.cos(snap.yaw[r] - path_yaw), 0.0)
+        why = reason_of_kind(snap.kind[r], snap.role[r] == Role.PROP)
+        v_lead = np.where(why == Reason.PEDESTRIAN, 0.0, v_lead)  # walkers are treated as standing
+        term = np.full(n, np.inf)
+        allow = np.full(n, np.inf)
+        whys = np.zeros(n, np.int8)
+        for w in np.unique(why):
+            sel = why == w
+            g = GAPS[Reason(int(w))]
+            term[k[sel]] = idm(v[k[sel]], cruise[k[sel]], gap[sel], v_lead[sel], g.s0, g.headway, c.idm)
+            allow[k[sel]] = allowed_speed(gap[sel], v_lead[sel], g.s0, g.headway, c.approach_decel)
+        whys[k] = why
+        rows_full = np.full(n, -1, np.int64)
+        rows_full[k] = r
+        dist_full = np.full(n, np.inf)
+        dist_full[k] = gap
+        return Candidate(term, whys, rows_full, dist_full, allow), hit_row
 
-        # 2. waiting for a gap before going around an obstacle: stop the centre at the detour's stop point
-        if det.waiting.any():
-            g = GAPS[Reason.DETOUR_WAIT]
-            gap = det.stop_distance + g.s0
-            term = np.where(det.waiting, idm(v, cruise, gap, np.zeros(n), g.s0, g.headway, c.idm), np.inf)
-            term = np.where(det.waiting & (det.stop_distance < c.stop_reached), -c.idm.max_accel, term)
-            allow = allowed_speed(gap, np.zeros(n), g.s0, 0.0, c.approach_decel)
-            allow = np.where(det.stop_distance < c.stop_reached, 0.0, allow)
-            take(
-                term,
-                np.full(n, Reason.DETOUR_WAIT, np.int8),
-                None,
-                det.stop_distance,
-                np.where(det.waiting, allow, np.inf),
-            )
-
-        # 3. junction entries ahead: lights, stop signs, give way
-        self._junction_terms(snap, obs.tick, i, v, ego_s, half_len, cruise, unblocking, take)
-
-        # 4. forecast: a predicted collision with anything but the object followed above stops the CAV
-        around = [np.concatenate([a, t]) for a, t in zip(det.actors, det.traffic, strict=True)]
-        self._forecast_term(snap, rows, i, v, path, accel, hit_row, around, unblocking, take)
-
-        # anti-blocking: standing for a forecast or a give-way too long -> ignore them for a while
-        standing = v < c.standing_speed
-        waiting = standing & np.isin(reason, [Reason.FORECAST, Reason.YIELD])
-        self.blocked_ticks[i] = np.where(waiting, self.blocked_ticks[i] + 1, 0)
-        start = self.blocked_ticks[i] >= c.unblock_after
-        self.unblock_until[i[start]] = obs.tick + c.unblock_for
-        self.blocked_ticks[i[start]] = 0
-
-        controls = self._controls(obs, pos, v, path, frac, accel)
-        self._record(
-            snap,
-            obs.tick,
-            i,
-            v,
-            accel,
-            desired,
-            reason,
-            obj_row,
-            obj_dist,
-            path,
-            _detour_record(snap, rows, det),
-        )
-        return controls
+    def _detour_wait(self, det: Detour, v: np.ndarray, cruise: np.ndarray) -> Candidate | None:
+        """Waiting for a gap before going around an obstacle: stop the centre at the detour's stop point."""
+        if not det.waiting.any():
+            return None
+        c, n = self.config, len(v)
+        g = GAPS[Reason.DETOUR_WAIT]
+        gap = det.stop_distance + g.s0
+        term = np.where(det.waiting, idm(v, cruise, gap, np.zeros(n), g.s0, g.headway, c.idm), np.inf)
+        term = np.where(det.waiting & (det.stop_distance < c.stop_reached), -c.idm.max_accel, term)
+        allow = allowed_speed(gap, np.zeros(n), g.s0, 0.0, c.approach_decel)
+        allow = np.where(det.stop_distance < c.stop_reached, 0.0, allow)
+        why = np.full(n, Reason.DETOUR_WAIT, np.int8)
+        return Candidate(term, why, None, det.stop_distance, np.where(det.waiting, allow, np.inf))
 
     # ------------------------------------------------------------------ parts
     @staticmethod
@@ -312,15 +305,14 @@ class ExpertAgent(Agent):
     def _junction_terms(
         self,
         snap: Snapshot,
-        tick: int,
         i: np.ndarray,
         v: np.ndarray,
         ego_s: np.ndarray,
         half_len: np.ndarray,
         cruise: np.ndarray,
         unblocking: np.ndarray,
-        take: object,
-    ) -> None:
+    ) -> Candidate:
+        """Junction entries ahead: lights, stop signs, give way (the nearest entry that asks for a stop)."""
         c, p = self.config, self.plans
         n = len(i)
         gap_all = p.entry_distance[i] - ego_s[:, None] - half_len[:, None]  # (n, E) bumper to line
@@ -390,7 +382,7 @@ class ExpertAgent(Agent):
                         )
                     terms[a], whys[a], dists[a], allows[a] = term, why, gap, allow
                     break  # the nearest entry that asks for a stop decides
-        take(terms, whys, None, dists, allows)  # type: ignore[operator]
+        return Candidate(terms, whys, None, dists, allows)
 
     def _forecast_term(
         self,
@@ -403,8 +395,7 @@ class ExpertAgent(Agent):
         followed: np.ndarray,
         around: list[np.ndarray],
         unblocking: np.ndarray,
-        take: object,
-    ) -> None:
+    ) -> Candidate:
         """Roll every CAV along its path at the speed the other rules leave it (so a CAV stopping for a
         light does not see the crossing traffic it will never meet) and stop it for the first predicted
         conflict with a moving actor that is not behind it and not the object it already follows. Between
@@ -438,7 +429,7 @@ class ExpertAgent(Agent):
         # allowed: the speed that still stops within the distance braking to rest by the conflict takes
         allow = np.sqrt(c.approach_decel * v * np.where(hit, np.maximum(when, 0.0), 0.0))
         allow = np.where(hit, np.where(v < c.hold_speed, 0.0, allow), np.inf)
-        take(term, np.full(n, Reason.FORECAST, np.int8), row, gap, allow)  # type: ignore[operator]
+        return Candidate(term, np.full(n, Reason.FORECAST, np.int8), row, gap, allow)
 
     def _must_yield(self, snap: Snapshot, link: int, gap: float, v: float) -> bool:
         """A vehicle with priority over ``link`` is in the junction on a conflicting path, or will reach it
@@ -495,14 +486,11 @@ class ExpertAgent(Agent):
         tick: int,
         i: np.ndarray,
         v: np.ndarray,
-        accel: np.ndarray,
-        desired: np.ndarray,
-        reason: np.ndarray,
-        obj_row: np.ndarray,
-        obj_dist: np.ndarray,
+        verdict: Verdict,
         path: np.ndarray,
         detour: dict[str, np.ndarray],
     ) -> None:
+        accel, obj_row = verdict.accel, verdict.row
         has = obj_row >= 0
         ids = np.full(len(i), "", dtype=object)
         ids[has] = snap.ids[obj_row[has]]
@@ -512,13 +500,13 @@ class ExpertAgent(Agent):
             tick=tick,
             cav_index=i.copy(),
             target_speed=np.maximum(v + accel * self.config.speed_time_constant, 0.0),
-            desired_speed=desired,
+            desired_speed=verdict.desired,
             accel=accel,
-            reason=reason,
+            reason=verdict.reason,
             object_row=obj_row,
             object_id=ids.astype(str),
             object_kind=kind,
-            distance=obj_dist,
+            distance=verdict.distance,
             path=path[:, :PATH_OUT].copy(),
             route_index=self.progress[i].copy(),
             **detour,

@@ -3,7 +3,9 @@
 The expert steers along ``route.xy + offset * left normal`` and checks its corridor along that same path.
 Every tick :meth:`DetourPlanner.update` returns, for each CAV, that offset at its next ``horizon`` route
 points (1 m apart), whether the CAV must hold before the obstacle because the lane it has to borrow is not
-clear, and which actors the shift is for.
+clear, and which actors the shift is for. What is shifted for (the table below) is judged for all (CAV,
+actor) pairs at once in :mod:`~cmudrive.agents.expert.detour_detect`; this module fits the shifts and
+checks the lane they borrow.
 
 What is shifted for (``reference/MODEL_AND_EXPERT.md``, PDM-Lite; the obstacle types of
 ``reference/SCENARIOS.md``), all judged in the route's Frenet frame (s along the route, d + left):
@@ -45,9 +47,17 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from enum import IntEnum
 
-import numba
 import numpy as np
 
+from cmudrive.agents.expert.detour_detect import (
+    Ego,
+    Egos,
+    Pairs,
+    invaders,
+    near_route_points,
+    obstacles,
+    sirens,
+)
 from cmudrive.maps import RoadMap, Route, other_level
 from cmudrive.maps.model import NO_INDEX, LaneKind
 from cmudrive.sim.snapshot import ActorKind, Role, Snapshot
@@ -245,12 +255,12 @@ class DetourPlanner:
         pairs = self._pairs(snap, cav_rows, cav_index, k_ego, np.full(n, cfg.reach))
         pairs = pairs.subset(pairs.row != cav_rows[pairs.cav])
         self._update_standing(snap, pairs)
-        ego = _Egos(
+        ego = Egos(
             s_ego[pairs.cav], 0.5 * snap.length[cav_rows][pairs.cav], 0.5 * snap.width[cav_rows][pairs.cav]
         )
-        obstacle = self._obstacles(snap, pairs, ego)
-        invading = self._invaders(snap, pairs, ego)
-        siren = self._sirens(snap, pairs, ego)
+        obstacle = obstacles(snap, pairs, ego, cfg, self._standing_since)
+        invading = invaders(snap, pairs, ego, cfg)
+        siren = sirens(snap, pairs, ego, cfg)
         offset = np.zeros((n, h))
         waiting = np.zeros(n, bool)
         stop_index = np.full(n, -1, np.int64)
@@ -299,11 +309,11 @@ class DetourPlanner:
         cav_index: np.ndarray,
         k_ego: np.ndarray,
         reach: np.ndarray,
-    ) -> _Pairs:
+    ) -> Pairs:
         """Every (CAV, actor) pair within ``reach`` (n,) [m], with the actor in the CAV's route frame."""
         back = int(self.cfg.reach) + 10
         fwd = int(max(float(reach.max(initial=0.0)), self.cfg.reach)) + self.cfg.horizon
-        cav, row, k = _near_route_points(
+        cav, row, k = near_route_points(
             self.xy, cav_index, k_ego, cav_rows, snap.x, snap.y, snap.valid, reach, back, fwd
         )
         same = ~other_level(snap.z[cav_rows[cav]], snap.z[row])  # not on a bridge over it or a road under
@@ -317,11 +327,11 @@ class DetourPlanner:
         c, sn = np.abs(np.cos(dyaw)), np.abs(np.sin(dyaw))
         hl, hw = 0.5 * snap.length[row], 0.5 * snap.width[row]
         to_junction = self.to_junction[i, k] - (s - self.dist[i, k])
-        return _Pairs(
+        return Pairs(
             cav, row, k, s, d, hw * c + hl * sn, hl * c + hw * sn, np.cos(dyaw), self.half[i, k], to_junction
         )
 
-    def _update_standing(self, snap: Snapshot, pairs: _Pairs) -> None:
+    def _update_standing(self, snap: Snapshot, pairs: Pairs) -> None:
         """How long each scenario vehicle near a CAV has been standing (kept only while it stands)."""
         rows = np.unique(pairs.row)
         rows = rows[(snap.role[rows] == Role.SCENARIO) & (snap.kind[rows] != ActorKind.PROP)]
@@ -329,60 +339,11 @@ class DetourPlanner:
         old = self._standing_since
         self._standing_since = {str(a): old.get(str(a), snap.time) for a in snap.ids[rows]}
 
-    # ------------------------------------------------------------------ what is there (all pairs at once)
-    def _obstacles(self, snap: Snapshot, p: _Pairs, ego: _Egos) -> np.ndarray:
-        """(k,) bool: the pair's actor is an obstacle in the CAV's corridor ahead, to go around."""
-        cfg = self.cfg
-        kind, role, speed = snap.kind[p.row], snap.role[p.row], np.abs(snap.speed[p.row])
-        static = (kind == ActorKind.PROP) | (role == Role.PROP)
-        vehicle = ~np.isin(kind, [ActorKind.PEDESTRIAN, ActorKind.BICYCLE, ActorKind.PROP])
-        scenario = role == Role.SCENARIO
-        ahead = (p.s + p.half_lon > ego.s - ego.half_len) & (p.s - p.half_lon - ego.s < cfg.look_ahead)
-        reach = ego.half_width + cfg.block_margin
-        inside = (p.d - p.half_lat < reach) & (p.d + p.half_lat > -reach) & (role != Role.CAV)
-        parked = scenario & vehicle & ahead & inside & (np.abs(p.d) >= cfg.side_fraction * 2.0 * p.half_w)
-        if parked.any():
-            since = np.array([self._standing_since.get(str(a), np.inf) for a in snap.ids[p.row[parked]]])
-            parked[parked] = snap.time - since >= cfg.min_standing
-            parked &= p.to_junction > cfg.stop_line_gap + p.half_lon
-            parked &= ~self._queued(snap, p, parked)
-        bike = scenario & (kind == ActorKind.BICYCLE) & (p.cos > 0.8) & (speed < cfg.bicycle_speed)
-        return (static | parked | bike) & ahead & inside
-
-    def _queued(self, snap: Snapshot, p: _Pairs, cand: np.ndarray) -> np.ndarray:
-        """(k,) bool: a moving vehicle is in front of the candidate within ``queue_gap``, in its band."""
-        cfg = self.cfg
-        moving = (np.abs(snap.speed[p.row]) > cfg.moving_speed) & (snap.kind[p.row] != ActorKind.PEDESTRIAN)
-        c, q = np.flatnonzero(cand), np.flatnonzero(moving & (p.cos > 0.5))
-        out = np.zeros(len(p.row), bool)
-        if len(q) == 0:
-            return out
-        gap = (p.s[q] - p.half_lon[q])[None, :] - (p.s[c] + p.half_lon[c])[:, None]  # (m, q) [m]
-        band = np.abs(p.d[q][None, :] - p.d[c][:, None]) < p.half_lat[q][None, :] + p.half_lat[c][:, None]
-        same = p.cav[q][None, :] == p.cav[c][:, None]
-        out[c] = np.any(same & band & (gap > -0.5) & (gap < cfg.queue_gap), axis=1)
-        return out
-
-    def _invaders(self, snap: Snapshot, p: _Pairs, ego: _Egos) -> np.ndarray:
-        """(k,) bool: an oncoming vehicle ahead whose side comes within ``invading_margin`` of the CAV's."""
-        cfg = self.cfg
-        kind = snap.kind[p.row]
-        oncoming = (p.cos < -0.7) & (np.abs(snap.speed[p.row]) > cfg.moving_speed)
-        oncoming &= ~np.isin(kind, [ActorKind.PEDESTRIAN, ActorKind.PROP]) & (snap.role[p.row] != Role.PROP)
-        near = (p.s + p.half_lon > ego.s - ego.half_len) & (p.s - p.half_lon - ego.s < cfg.look_ahead)
-        inner = p.d - p.half_lat
-        return oncoming & near & (p.d > 0.0) & (inner < ego.half_width + cfg.invading_margin)
-
-    def _sirens(self, snap: Snapshot, p: _Pairs, ego: _Egos) -> np.ndarray:
-        """(k,) bool: an emergency vehicle with its siren on behind the CAV in the CAV's lane."""
-        behind = (p.s < ego.s) & (p.s > ego.s - self.cfg.yield_distance)
-        return snap.siren[p.row] & (p.cos > 0.7) & behind & (np.abs(p.d) < p.half_w + 0.5)
-
     # ------------------------------------------------------------------ one CAV
     def _plan_cav(
         self,
         snap: Snapshot,
-        p: _Pairs,
+        p: Pairs,
         masks: tuple[np.ndarray, np.ndarray, np.ndarray],
         me: int,
         i: int,
@@ -391,7 +352,7 @@ class DetourPlanner:
     ) -> _Plan:
         """Fresh segments + held ones, merged; gap checks for those that enter a traffic lane."""
         obstacle, invading, siren = masks
-        ego = _Ego(s_ego, 0.5 * float(snap.length[me]), 0.5 * float(snap.width[me]))
+        ego = Ego(s_ego, 0.5 * float(snap.length[me]), 0.5 * float(snap.width[me]))
         v_e = max(float(snap.speed[me]), 0.0)
         fresh: list[_Segment] = []
         blocked = False
@@ -432,7 +393,7 @@ class DetourPlanner:
         busy_rows = np.unique(np.concatenate(busy or [_NO_ROWS]))
         return _Plan(keep, reason, rows, stop_s, busy_rows)
 
-    def _obstacle_segments(self, snap: Snapshot, p: _Pairs, i: int, ego: _Ego) -> tuple[list[_Segment], bool]:
+    def _obstacle_segments(self, snap: Snapshot, p: Pairs, i: int, ego: Ego) -> tuple[list[_Segment], bool]:
         """One segment per group of obstacles whose shifts overlap; True when a group cannot be passed."""
         cfg = self.cfg
         cone = (snap.kind[p.row] == ActorKind.PROP) & (snap.length[p.row] < 0.6) & (snap.width[p.row] < 0.6)
@@ -472,7 +433,7 @@ class DetourPlanner:
             out.append(seg)
         return out, blocked
 
-    def _fit(self, i: int, seg: _Segment, ego: _Ego) -> _Segment | None:
+    def _fit(self, i: int, seg: _Segment, ego: Ego) -> _Segment | None:
         """``seg`` if the road has room for it all along, else None; where the shifted CAV would come
         closer than ``traffic_clearance`` to a vehicle at the neighbour lane's centre it borrows that lane
         (and goes to its centre, for a same-direction lane with ``full_lane_change``)."""
@@ -496,7 +457,7 @@ class DetourPlanner:
             return None
         return seg
 
-    def _invading_segment(self, p: _Pairs, i: int, ego: _Ego) -> list[_Segment]:
+    def _invading_segment(self, p: Pairs, i: int, ego: Ego) -> list[_Segment]:
         """Right, within the CAV's lane and a parking lane or shoulder, away from the invading vehicles."""
         cfg = self.cfg
         amp = float(np.min(p.d - p.half_lat)) - ego.half_width - cfg.invading_margin  # < 0: to the right
@@ -510,7 +471,7 @@ class DetourPlanner:
         seg.rows = p.row
         return [seg]
 
-    def _yield_segment(self, p: _Pairs, i: int, k_ego: int, ego: _Ego, v_e: float) -> list[_Segment]:
+    def _yield_segment(self, p: Pairs, i: int, k_ego: int, ego: Ego, v_e: float) -> list[_Segment]:
         """Into a same-direction neighbour lane (left first), else toward the right edge, for a siren."""
         cfg = self.cfg
         trans = max(cfg.transition, cfg.yield_transition_time * v_e)
@@ -533,7 +494,7 @@ class DetourPlanner:
         return [seg]
 
     def _traffic(
-        self, snap: Snapshot, seg: _Segment, me: int, i: int, k_ego: int, ego: _Ego, v_e: float
+        self, snap: Snapshot, seg: _Segment, me: int, i: int, k_ego: int, ego: Ego, v_e: float
     ) -> np.ndarray:
         """Snapshot rows of vehicles that keep the lane ``seg`` borrows busy (empty: clear to go).
 
@@ -610,43 +571,6 @@ def _merge(segments: list[_Segment]) -> list[_Segment]:
 
 
 @dataclass(frozen=True)
-class _Pairs:
-    """(CAV, actor) pairs near each other, the actor in the CAV's route frame; arrays of shape (k,)."""
-
-    cav: np.ndarray  # position of the CAV in the update's arrays
-    row: np.ndarray  # the actor's snapshot row
-    k: np.ndarray  # nearest route point of the CAV's route
-    s: np.ndarray  # [m] route distance of the actor's centre
-    d: np.ndarray  # [m] lateral offset of its centre, + left
-    half_lat: np.ndarray  # [m] half its extent across the route
-    half_lon: np.ndarray  # [m] half its extent along the route
-    cos: np.ndarray  # cosine of its heading relative to the route (-1: oncoming)
-    half_w: np.ndarray  # [m] half the width of the route's lane there
-    to_junction: np.ndarray  # [m] from the actor to the route's next junction entry (inf: none)
-
-    def subset(self, sel: np.ndarray) -> _Pairs:
-        return _Pairs(*(getattr(self, f)[sel] for f in _PAIR_FIELDS))
-
-
-@dataclass(frozen=True)
-class _Ego:
-    """One CAV in its own route frame."""
-
-    s: float  # [m] route distance of its centre
-    half_len: float  # [m]
-    half_width: float  # [m]
-
-
-@dataclass(frozen=True)
-class _Egos:
-    """The CAV of each pair in its route frame, (k,) arrays."""
-
-    s: np.ndarray  # [m] route distance of its centre
-    half_len: np.ndarray  # [m]
-    half_width: np.ndarray  # [m]
-
-
-@dataclass(frozen=True)
 class _Plan:
     segments: list[_Segment]  # the shifts the path follows now
     reason: DetourReason
@@ -656,50 +580,3 @@ class _Plan:
 
 
 _NO_ROWS = np.zeros(0, np.int64)
-_PAIR_FIELDS = ("cav", "row", "k", "s", "d", "half_lat", "half_lon", "cos", "half_w", "to_junction")
-
-
-@numba.njit(cache=True)
-def _near_route_points(
-    route_xy: np.ndarray,  # (R, P, 2) padded route points
-    cav_index: np.ndarray,  # (n,) route of each CAV
-    k_ego: np.ndarray,  # (n,) each CAV's route index
-    cav_rows: np.ndarray,  # (n,) each CAV's snapshot row
-    x: np.ndarray,  # (A,) actor centres [m]
-    y: np.ndarray,
-    valid: np.ndarray,  # (A,) bool
-    reach: np.ndarray,  # (n,) [m] actors farther than this from the CAV are skipped
-    back: int,  # [route points] searched behind the CAV's index
-    fwd: int,  # [route points] searched ahead of it
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(CAV position, actor row, nearest route point) of every actor within reach of a CAV: a coarse scan
-    every 4th point of the window, then the 4 points either side of the best."""
-    n, a = cav_index.shape[0], x.shape[0]
-    last = route_xy.shape[1] - 1
-    out_c = np.empty(n * a, np.int64)
-    out_r = np.empty(n * a, np.int64)
-    out_k = np.empty(n * a, np.int64)
-    m = 0
-    for c in range(n):
-        r, me = cav_index[c], cav_rows[c]
-        lo, hi = max(k_ego[c] - back, 0), min(k_ego[c] + fwd, last)
-        for j in range(a):
-            if not valid[j]:
-                continue
-            dx, dy = x[j] - x[me], y[j] - y[me]
-            if dx * dx + dy * dy > reach[c] * reach[c]:
-                continue
-            best, best_d = lo, np.inf
-            for k in range(lo, hi + 1, 4):
-                ex, ey = route_xy[r, k, 0] - x[j], route_xy[r, k, 1] - y[j]
-                dd = ex * ex + ey * ey
-                if dd < best_d:
-                    best, best_d = k, dd
-            for k in range(max(best - 4, lo), min(best + 4, hi) + 1):
-                ex, ey = route_xy[r, k, 0] - x[j], route_xy[r, k, 1] - y[j]
-                dd = ex * ex + ey * ey
-                if dd < best_d:
-                    best, best_d = k, dd
-            out_c[m], out_r[m], out_k[m] = c, j, best
-            m += 1
-    return out_c[:m], out_r[:m], out_k[:m]

@@ -115,7 +115,7 @@ class ActorFlowScenario(Scenario):
         return pairs
 
     def on_activate(self, snap: Snapshot) -> None:
-        background, m = self.world.background, self.map
+        background, m = self.background, self.map
         for flow in self.flows:
             if self.prefill:
                 flow.prefill()
@@ -148,8 +148,8 @@ class ActorFlowScenario(Scenario):
     def on_end(self) -> None:
         for flow in self.flows:
             flow.stop()
-        if self.opposite_off and self.world.background is not None:
-            self.world.background.opposite_traffic(True)
+        if self.opposite_off and self.background is not None:
+            self.background.opposite_traffic(True)
 
 
 class EnterActorFlow(ActorFlowScenario):

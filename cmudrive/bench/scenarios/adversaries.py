@@ -129,8 +129,8 @@ class OppositeVehicle(Scenario):
         import libsumo
 
         sumo = self.world.sumo
-        if self.world.background is not None:
-            self.world.background.clear_junction(self.junction)
+        if self.background is not None:
+            self.background.clear_junction(self.junction)
         half = 0.5 * ACTOR_TYPES[EV_TYPE].length
         sumo.add_vehicle(
             self.ev_id, EV_TYPE, self.edges, int(Role.SCENARIO),

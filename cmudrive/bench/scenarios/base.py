@@ -29,11 +29,12 @@ from typing import ClassVar
 import numpy as np
 
 from cmudrive.bench.criteria import RouteCriteria
-from cmudrive.bench.routes import TRIGGER_TOLERANCE, ScenarioSpec
+from cmudrive.bench.route_spec import TRIGGER_TOLERANCE, ScenarioSpec
 from cmudrive.bench.scenarios.params import Param, ScenarioError, parse_params
 from cmudrive.bench.scenarios.placement import LanePoint, heading, point_xy, walk
 from cmudrive.bench.scenarios.plan import PlanItem, point
 from cmudrive.maps import RoadMap, Route
+from cmudrive.sim.background_commands import BackgroundCommands
 from cmudrive.sim.dynamics import Controls
 from cmudrive.sim.snapshot import Role, Snapshot
 from cmudrive.sim.world import World
@@ -171,6 +172,11 @@ class Scenario:
         if self.ctx.world is None:
             raise RuntimeError(f"scenario {self.spec.name} was built for its plan only: it has no world")
         return self.ctx.world
+
+    @property
+    def background(self) -> BackgroundCommands | None:
+        """The world's background activity, as the commands a scenario gives it (None: the world has none)."""
+        return self.world.background
 
     @property
     def criteria(self) -> RouteCriteria:

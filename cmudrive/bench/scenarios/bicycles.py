@@ -111,8 +111,8 @@ class CrossingBicycleFlow(Scenario):
         return items + ([self.light_point(self.ego_lane)] if self.signalized else [])
 
     def on_activate(self, snap: Snapshot) -> None:
-        if self.world.background is not None:
-            self.world.background.clear_junction(self.junction)
+        if self.background is not None:
+            self.background.clear_junction(self.junction)
         self.flow.prefill()
         self.light_phase = -1
 

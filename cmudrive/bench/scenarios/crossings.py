@@ -121,8 +121,8 @@ class Crossing(Scenario):
     def on_activate(self, snap: Snapshot) -> None:
         self.fired_at = math.nan
         self.crossed_at = np.full(len(self.ctx.routes), np.nan)  # [m] route distance at the crossing end
-        if self.leave_space is not None and self.world.background is not None:
-            self.world.background.leave_space(0, self.num("distance") + self.leave_space)
+        if self.leave_space is not None and self.background is not None:
+            self.background.leave_space(0, self.num("distance") + self.leave_space)
         if self.hidden:
             self.spawn_crossers()
 

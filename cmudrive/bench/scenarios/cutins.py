@@ -73,8 +73,8 @@ class CutIn(Scenario):
     def on_activate(self, snap: Snapshot) -> None:
         self.fired_at = math.nan
         self.motion: PathMotion | None = None
-        if self.world.background is not None:
-            self.world.background.leave_space(0, self.leave_space)
+        if self.background is not None:
+            self.background.leave_space(0, self.leave_space)
         if self.hidden:
             self.spawn_cars()
 
@@ -135,12 +135,12 @@ class StaticCutIn(CutIn):
 
     def on_activate(self, snap: Snapshot) -> None:
         super().on_activate(snap)
-        if self.world.background is not None:
-            self.world.background.remove_lane([self.queue_lane])
+        if self.background is not None:
+            self.background.remove_lane([self.queue_lane])
 
     def on_end(self) -> None:
-        if self.world.background is not None:
-            self.world.background.readd_lane([self.queue_lane])
+        if self.background is not None:
+            self.background.readd_lane([self.queue_lane])
 
 
 class ParkingCutIn(CutIn):
@@ -256,7 +256,7 @@ class HighwayCutIn(Scenario):
     def on_activate(self, snap: Snapshot) -> None:
         xy, yaw = self.approach.pose()
         self.spawn("car", "car", xy, yaw)
-        background = self.world.background
+        background = self.background
         if background is not None:
             lanes = self.map.successors(self.start.lane)
             if len(lanes) and self.map.lane_junction[lanes[0]] >= 0:

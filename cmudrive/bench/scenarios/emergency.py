@@ -81,8 +81,8 @@ class YieldToEmergencyVehicle(Scenario):
 
     def on_activate(self, snap: Snapshot) -> None:
         m, sumo = self.map, self.world.sumo
-        if self.world.background is not None:
-            self.world.background.remove_lane([self.t_wp.lane])
+        if self.background is not None:
+            self.background.remove_lane([self.t_wp.lane])
         sumo.add_vehicle(
             self.ev_id,
             EV_TYPE,
@@ -131,5 +131,5 @@ class YieldToEmergencyVehicle(Scenario):
             for i in np.flatnonzero(self.running_charged()).tolist():
                 self.criteria.record_yield_to_emergency_vehicle(i, pose[0], pose[1], actor=self.ev_id)
         self.world.sumo.remove(self.ev_id)
-        if self.world.background is not None:
-            self.world.background.readd_lane([self.t_wp.lane])
+        if self.background is not None:
+            self.background.readd_lane([self.t_wp.lane])

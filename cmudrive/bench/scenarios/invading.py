@@ -73,7 +73,7 @@ class InvadingTurn(Scenario):
         return [*items, path("invading", self.path)]
 
     def on_activate(self, snap: Snapshot) -> None:
-        background = self.world.background
+        background = self.background
         if background is not None:
             background.remove_lane([self.t_wp.lane])
             background.opposite_traffic(False)
@@ -102,7 +102,7 @@ class InvadingTurn(Scenario):
         return bool(np.all(self.passed[self.running_charged()]))
 
     def on_end(self) -> None:
-        background = self.world.background
+        background = self.background
         if background is not None:
             background.readd_lane([self.t_wp.lane])
             background.opposite_traffic(True)

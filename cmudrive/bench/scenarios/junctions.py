@@ -195,8 +195,8 @@ class BlockedIntersection(Scenario):
         return [point("car", self.xy, heading(self.map, self.at))]
 
     def on_activate(self, snap: Snapshot) -> None:
-        if self.world.background is not None and self.junction >= 0:
-            self.world.background.clear_junction(self.junction)
+        if self.background is not None and self.junction >= 0:
+            self.background.clear_junction(self.junction)
         self.spawn("blocker", "car", self.xy, heading(self.map, self.at))
 
     def on_update(self, snap: Snapshot, progress: RouteProgress) -> bool:
@@ -266,15 +266,15 @@ class HardBreakRoute(Scenario):
         self.restart_at = math.nan  # [m] CAV 0's route distance when the traffic restarted
 
     def on_activate(self, snap: Snapshot) -> None:
-        if self.world.background is not None:
-            self.world.background.stop_lane(self.lanes)
+        if self.background is not None:
+            self.background.stop_lane(self.lanes)
 
     def on_update(self, snap: Snapshot, progress: RouteProgress) -> bool:
         driven = float(self.ctx.routes[0].distance[progress.index[0]])
         if math.isnan(self.restart_at):
             if self.time - self.activated_at >= self.STOP:
-                if self.world.background is not None:
-                    self.world.background.release_lane(self.lanes)
+                if self.background is not None:
+                    self.background.release_lane(self.lanes)
                 self.restart_at = driven
             return False
         return driven - self.restart_at >= self.AFTER

@@ -135,7 +135,7 @@ class LaneObstacle(Scenario):
             self.spawn_items()
 
     def on_activate(self, snap: Snapshot) -> None:
-        background = self.world.background
+        background = self.background
         if background is not None:
             background.leave_space(0, self.num("distance") + self.leave_space_extra)
         if self.hidden:
@@ -165,7 +165,7 @@ class LaneObstacle(Scenario):
     def after_idle(self) -> None:
         """One-way: cap background traffic (MaxSpeed). TwoWays: WrongDirOff for the charged CAVs, OppOff,
         and an OppositeFlow on the oncoming lane beside the last obstacle."""
-        background = self.world.background
+        background = self.background
         if not self.two_ways:
             if background is not None:
                 background.max_speed(self.num("speed") * KMH)
@@ -210,7 +210,7 @@ class LaneObstacle(Scenario):
         return items
 
     def on_end(self) -> None:
-        background = self.world.background
+        background = self.background
         if self.capped and not self.two_ways and background is not None:
             background.max_speed(None)
         if self.capped and self.two_ways:
@@ -287,8 +287,8 @@ class ConstructionObstacle(LaneObstacle):
         return items
 
     def on_activate(self, snap: Snapshot) -> None:
-        if self.world.background is not None:
-            self.world.background.remove_lane([self.t_wp.lane])
+        if self.background is not None:
+            self.background.remove_lane([self.t_wp.lane])
         super().on_activate(snap)
 
     def close_point(self) -> np.ndarray:  # the reference waits for C, 5 m past the arrow board
@@ -296,8 +296,8 @@ class ConstructionObstacle(LaneObstacle):
 
     def on_end(self) -> None:
         super().on_end()
-        if self.world.background is not None:
-            self.world.background.readd_lane([self.t_wp.lane])
+        if self.background is not None:
+            self.background.readd_lane([self.t_wp.lane])
 
 
 class HazardAtSideLane(LaneObstacle):

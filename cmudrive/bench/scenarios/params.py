@@ -11,7 +11,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from cmudrive.bench.routes import ParamValue, ScenarioSpec
+from cmudrive.bench.route_spec import ParamValue, ScenarioSpec
 
 KMH = 1.0 / 3.6  # [m/s per km/h]
 

@@ -121,7 +121,7 @@ class JunctionTurnFlow(Scenario):
     flow: VehicleFlow | None = None
 
     def on_activate(self, snap: Snapshot) -> None:
-        background = self.world.background
+        background = self.background
         if background is not None:
             background.clear_junction(self.junction)
             if self.side == "opposite":
@@ -150,8 +150,8 @@ class JunctionTurnFlow(Scenario):
     def on_end(self) -> None:
         if self.flow is not None:
             self.flow.stop()
-        if self.side == "opposite" and self.world.background is not None:
-            self.world.background.opposite_traffic(True)
+        if self.side == "opposite" and self.background is not None:
+            self.background.opposite_traffic(True)
         if self.signalized:
             self.world.lights.release()
 
