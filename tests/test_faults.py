@@ -332,6 +332,19 @@ def test_a_broken_checkpoint_stops_the_run_before_any_route(tmp_path: Path) -> N
     assert not (out / "routes").exists()
 
 
+def test_a_missing_checkpoint_stops_the_run_naming_the_path(tmp_path: Path) -> None:
+    pytest.importorskip("torch")
+    file = tmp_path / "one.xml"
+    write_routes([ring_route("ok")], file)
+    out, missing = tmp_path / "out", tmp_path / "runs" / "nothing-here"
+    args = ["eval", "--routes", str(file), "--agent", "v2v-vla-baseline", "--checkpoint", str(missing)]
+    result = CliRunner().invoke(app, [*args, "--workers", "1", "--out", str(out)])
+    assert result.exit_code == 1, result.output
+    text = " ".join(result.output.split())  # rich wraps long lines
+    assert "V2VVLABaselineAgent cannot run" in text and "nothing-here" in text and "--baseline" in text
+    assert not (out / "routes").exists()
+
+
 def test_a_checkpoint_whose_config_names_another_size_is_refused(tmp_path: Path) -> None:
     pytest.importorskip("torch")
     from cmudrive.model.modeling import V2VVLA

@@ -163,13 +163,6 @@ def evaluate(
     except ValueError as exc:
         fail(ValueError(f"--step-timeout / --tick-cap: {exc}"))
     agent, config = _leaderboard_agent(agent, config)
-    if agent in ("v2v-vla", "v2v-vla-baseline"):  # a missing checkpoint fails here, not once per route
-        from cmudrive.model.agent import resolve_checkpoint
-
-        try:
-            resolve_checkpoint(checkpoint, cooperative=agent == "v2v-vla")
-        except FileNotFoundError as exc:
-            fail(exc)
     runner = route_executor(executor, workers, ray_address)
     with route_progress(path, len(specs), tick_cap) as (on_progress, done):
 

@@ -177,6 +177,17 @@ def positions(mask: torch.Tensor) -> torch.Tensor:
     return (mask.cumsum(-1) - 1).clamp(min=0)
 
 
+def _kv_cache(lm: Any, out: Any) -> tuple[str, Any]:
+    """The keyword under which ``lm`` takes its key/value cache and the cache ``out`` returned. Later
+    transformers 5 releases call both ``cache`` and warn on every call under the old name
+    ``past_key_values``; earlier ones only know the old name."""
+    import inspect
+
+    if "cache" in inspect.signature(lm.forward).parameters:
+        return "cache", out["cache"]
+    return "past_key_values", out["past_key_values"]
+
+
 def query_states(lm: Any, embeds: torch.Tensor, mask: torch.Tensor, q: int) -> torch.Tensor:
     """(B, Q, H): the language model's (a ``Qwen2Model``) final states at the last ``q`` positions of
     ``embeds`` (B, L+Q, H), equal to ``lm(...).last_hidden_state[:, -q:]`` but with the last decoder
@@ -415,7 +426,7 @@ class V2VVLA(nn.Module):
         lm, head = self.backbone.model.language_model, self.backbone.lm_head
         embed = self.backbone.get_input_embeddings()
         eos, pad = self.processor.eos_token_id, self.processor.pad_token_id
-        cache = out.past_key_values
+        cache_arg, cache = _kv_cache(lm, out)
         alive = torch.ones(mask.shape[0], dtype=torch.bool, device=mask.device)  # no </s> yet
         tokens, keep = [], []
         for step in range(max_new_tokens + 1):
@@ -434,8 +445,8 @@ class V2VVLA(nn.Module):
                 inputs_embeds=embed(token[:, None]),
                 attention_mask=mask,
                 position_ids=positions(mask)[:, -1:],
-                past_key_values=cache,
                 use_cache=True,
+                **{cache_arg: cache},
             )
         return torch.stack(tokens, dim=1), torch.stack(keep, dim=1)
 
