@@ -16,7 +16,7 @@ import numpy as np
 from cmudrive.sim.snapshot import ActorKind, Role, Snapshot
 
 if TYPE_CHECKING:
-    from cmudrive.agents.expert.detour import DetourConfig
+    from cmudrive.agents.expert.detour_config import DetourConfig
 
 PAIR_FIELDS = ("cav", "row", "k", "s", "d", "half_lat", "half_lon", "cos", "half_w", "to_junction")
 
