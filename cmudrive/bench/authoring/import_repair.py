@@ -103,7 +103,10 @@ def repair_keypoints(spec: RouteSpec, road_map: RoadMap) -> tuple[RouteSpec, lis
             )
             continue
         for distance in GOAL_EXTENSIONS:
-            moved = _moved_along_lane(wps, road_map, -1, distance)
+            try:
+                moved = _moved_along_lane(wps, road_map, -1, distance)
+            except RouteError:  # the goal is on no lane: nothing to move along (check_planned names it)
+                break
             if _direct(moved, road_map):
                 spec = _with_cav(spec, k, moved)
                 notes.append(

@@ -387,8 +387,8 @@ def import_scenario_folders(
             named = exc.route_id is not None or f"route {folder.name!r}" in exc.problem
             result.skipped.append((folder.name, str(exc if named else exc.within(route_id=folder.name))))
             continue
-        except MapError as exc:
-            result.skipped.append((folder.name, str(exc)))
+        except MapError as exc:  # the town's network did not load
+            result.skipped.append((folder.name, f"route {folder.name!r}: {exc}"))
             continue
         result.routes.append(spec)
         result.notes.extend(
