@@ -123,8 +123,8 @@ def actor_type_for(model: str) -> str:
 
 
 @dataclass(frozen=True)
-class _VehicleFile:
-    """One route file of a scenario folder, read."""
+class _RouteFile:
+    """One route file of a scenario folder (an ego's or another actor's), read."""
 
     path: Path
     rel: str  # path relative to the scenario folder, with '/'
@@ -137,22 +137,27 @@ class _VehicleFile:
     weather: dict[str, float] | None
 
 
+def _number(raw: object, what: str) -> float:
+    """A finite number from an attribute or manifest value; RouteSpecError naming ``what`` otherwise."""
+    try:
+        value = float(str(raw))
+    except ValueError:
+        raise RouteSpecError(f"non-numeric {what}={raw!r}") from None
+    if not math.isfinite(value):
+        raise RouteSpecError(f"non-finite {what}={raw!r}")
+    return value
+
+
 def _coord(elem: ET.Element, attr: str, what: str, default: float | None) -> float:
     raw = elem.get(attr)
     if raw is None:
         if default is None:
             raise RouteSpecError(f"{what}: missing attribute {attr!r}")
         return default
-    try:
-        value = float(raw)
-    except ValueError:
-        raise RouteSpecError(f"{what}: non-numeric {attr}={raw!r}") from None
-    if not math.isfinite(value):
-        raise RouteSpecError(f"{what}: non-finite {attr}={raw!r}")
-    return value
+    return _number(raw, f"{what} {attr}")
 
 
-def _read_file(path: Path, folder: Path, entry: dict[str, object]) -> _VehicleFile:
+def _read_file(path: Path, folder: Path, entry: dict[str, object]) -> _RouteFile:
     """The file's one ``<route>``: town, role, model, speed, waypoints and weather; ``entry`` is its
     manifest entry (its kind, model and speed win over the file's)."""
     routes = parse_xml(path, "routes").findall("route")
@@ -170,9 +175,7 @@ def _read_file(path: Path, folder: Path, entry: dict[str, object]) -> _VehicleFi
             raise RouteSpecError(f"unknown role {role!r}; known: {', '.join(ROLE_DEFAULTS)}")
         model = str(entry.get("model") or route.get("model") or ROLE_DEFAULTS[role][0])
         raw_speed = entry.get("speed", route.get("speed"))
-        speed = (
-            None if raw_speed is None else _coord(ET.Element("x", speed=str(raw_speed)), "speed", "", None)
-        )
+        speed = None if raw_speed is None else _number(raw_speed, "speed")
         wps = route.findall("waypoint")
         if not wps:
             raise RouteSpecError("the <route> has no <waypoint>")
@@ -190,7 +193,7 @@ def _read_file(path: Path, folder: Path, entry: dict[str, object]) -> _VehicleFi
     except RouteSpecError as exc:
         raise RouteSpecError(exc.problem, path=str(path)) from None
     rel = path.relative_to(folder).as_posix()
-    return _VehicleFile(path, rel, town, role, model, speed, points, yaw, weather)
+    return _RouteFile(path, rel, town, role, model, speed, points, yaw, weather)
 
 
 def _manifest(folder: Path) -> tuple[dict[str, dict[str, object]], list[str]]:
@@ -223,7 +226,7 @@ def _manifest(folder: Path) -> tuple[dict[str, dict[str, object]], list[str]]:
 _TRAILING_NUMBER = re.compile(r"_(\d+)$")
 
 
-def _ego_order(egos: list[_VehicleFile], listed: list[str], scenario: str) -> list[_VehicleFile]:
+def _ego_order(egos: list[_RouteFile], listed: list[str], scenario: str) -> list[_RouteFile]:
     """Egos in the manifest's order, else by the number after the last underscore of the file name."""
     if listed:
         by_rel = {e.rel: e for e in egos}
@@ -245,7 +248,7 @@ def _ego_order(egos: list[_VehicleFile], listed: list[str], scenario: str) -> li
     return [e for _, e in sorted(numbered, key=lambda item: item[0])]
 
 
-def _actor(vf: _VehicleFile, actor_id: str) -> ActorSpec:
+def _actor(vf: _RouteFile, actor_id: str) -> ActorSpec:
     try:
         kind = actor_type_for(vf.model)
     except ValueError as exc:
@@ -279,10 +282,14 @@ def _read_scenario(
         raise RouteSpecError(
             f"the folder name is not a usable route id: {route_id_problem(scenario)}", str(folder)
         )
-    entries, listed = _manifest(folder)
-    files = [
-        _read_file(p, folder, entries.get(p.relative_to(folder).as_posix(), {})) for p in _xml_files(folder)
-    ]
+    try:
+        entries, listed = _manifest(folder)
+        files = [
+            _read_file(p, folder, entries.get(p.relative_to(folder).as_posix(), {}))
+            for p in _xml_files(folder)
+        ]
+    except RouteSpecError as exc:
+        raise exc.within(route_id=scenario) from None
     egos = _ego_order([f for f in files if f.role == "ego"], listed, scenario)
     if not egos:
         raise RouteSpecError("no ego vehicle file", path=str(folder), route_id=scenario)
