@@ -282,3 +282,35 @@ def test_side_by_side_starts_on_neighbouring_lanes_do_not_conflict(
     ahead = planner.plan_lanes(LanePos(lane, 13.0), LanePos(lane, 40.0))
     assert start_conflicts([a, beside]) == []
     assert [(i, j, round(d, 1)) for i, j, d in start_conflicts([a, ahead])] == [(0, 1, 3.0)]
+
+
+def test_routes_import_cli_writes_a_folder_as_routes_and_says_what_it_skipped(
+    tmp_path: Path, town05: RoadMap, road: tuple[int, int]
+) -> None:
+    """`cmudrive routes import FOLDER -o FILE --npc`: one route per scenario folder, the NPC variant's
+    background, the folder that cannot be planned named on the way."""
+    from typer.testing import CliRunner
+
+    from cmudrive.cli import app
+
+    lane, right = road
+    src = tmp_path / "Interdrive"
+    for name, far in (("r1_town05_ins_c", False), ("r2_town05_ins_c", True)):
+        (src / name).mkdir(parents=True)
+        (src / name / f"{name}_0.xml").write_text(
+            route_xml("Town05", [carla(town05, lane, 10.0), carla(town05, lane, 60.0)])
+        )
+        second = (
+            [(9000.0, 0.0), (9050.0, 0.0)]
+            if far
+            else [carla(town05, right, 10.0), carla(town05, right, 60.0)]
+        )
+        (src / name / f"{name}_1.xml").write_text(route_xml("Town05", second))
+    out = tmp_path / "interdrive.xml"
+    result = CliRunner().invoke(app, ["routes", "import", str(src), "-o", str(out), "--npc"])
+    text = " ".join(result.output.split())
+    assert result.exit_code == 0, text
+    assert "skipped r2_town05_ins_c:" in text and "r2_town05_ins_c_1.xml" in text
+    assert "wrote 1 routes" in text
+    (spec,) = read_routes(out)
+    assert spec.id == "r1_town05_ins_c" and len(spec.cavs) == 2 and spec.background == NPC_BACKGROUND
