@@ -310,7 +310,7 @@ def test_routes_import_cli_writes_a_folder_as_routes_and_says_what_it_skipped(
     result = CliRunner().invoke(app, ["routes", "import", str(src), "-o", str(out), "--npc"])
     text = " ".join(result.output.split())
     assert result.exit_code == 0, text
-    assert "skipped r2_town05_ins_c:" in text and "r2_town05_ins_c_1.xml" in text
+    assert "skipped route r2_town05_ins_c:" in text and "r2_town05_ins_c_1.xml" in text
     assert "wrote 1 routes" in text
     (spec,) = read_routes(out)
     assert spec.id == "r1_town05_ins_c" and len(spec.cavs) == 2 and spec.background == NPC_BACKGROUND

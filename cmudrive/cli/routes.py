@@ -259,7 +259,7 @@ def routes_import(
     except (OSError, ValueError, MapError) as exc:
         fail(exc)
     for route_id, reason in result.skipped:
-        err_console.print(f"[yellow]skipped {route_id}:[/] {reason}", highlight=False)
+        err_console.print(f"[yellow]skipped route {route_id}:[/] {reason}", highlight=False)
     for route_id, note in result.notes:
         err_console.print(f"[cyan]changed {route_id}:[/] {note}", highlight=False)
     if not result.routes:
