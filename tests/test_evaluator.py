@@ -156,3 +156,28 @@ def test_autopilot_drives_to_the_end_of_its_route() -> None:
     assert [c.status for c in result.cavs] == [STATUS_PERFECT] * 2
     assert [c.route_completion for c in result.cavs] == [100.0, 100.0]
     assert result.ticks < 1000  # 210-220 m at 0.9 x 90 km/h with a 3 m/s^2 arrival profile: 15-25 s
+
+
+def test_route_actors_stand_in_the_world_and_are_hit_as_their_blueprint_says() -> None:
+    """A route's own parked car and cone (as imported from an MDrive-style folder) stand in the two CAVs'
+    lanes; the blind PID agent runs into both: a vehicle collision for CAV 0, a layout one for CAV 1 (the
+    route asks for no background, so nothing else is on the road)."""
+    from dataclasses import replace
+
+    from cmudrive.bench.routes import ActorSpec, BackgroundSpec
+
+    m = load_map("interurban")
+
+    def at(lane: str, s: float) -> np.ndarray:
+        xy = m.index.frenet_to_xy(np.array([m.lane(lane)]), np.array([s]))
+        return np.column_stack([map_to_carla(xy), np.zeros(1)])
+
+    actors = (
+        ActorSpec("parked", "car", at("R1a-R2a_0", 120.0), static=True, model="vehicle.audi.a2"),
+        ActorSpec("cone", "cone", at("R1a-R2a_1", 160.0), static=True, model="static.prop.trafficcone01"),
+    )
+    spec = replace(ring_route(), actors=actors, background=BackgroundSpec(0, 0))
+    result = evaluate_route(spec, PidAgent, EvalConfig())
+    hits = [{k: len(v) for k, v in cav.infractions.items() if v} for cav in result.cavs]
+    assert hits[0].get("collisions_vehicle", 0) >= 1 and "collisions_layout" not in hits[0]
+    assert hits[1].get("collisions_layout", 0) >= 1 and "collisions_vehicle" not in hits[1]

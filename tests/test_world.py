@@ -326,3 +326,14 @@ def test_cav_off_the_road_leaves_sumo_and_comes_back_on_it(mini_net: Path, mini:
         cav, car = last.index_of("cav0"), last.index_of("car")
         gap = (last.x[cav] - 0.5 * last.length[cav]) - (last.x[car] + 0.5 * last.length[car])
         assert last.speed[car] < 0.05 and 1.0 < gap < 8.0 and events == 0
+
+
+def test_cav_whose_route_lies_inside_one_junction_enters_sumo(mini_net: Path, mini: RoadMap) -> None:
+    """A 19 m route along one internal lane of junction C (InterDrive's shortest routes start and end
+    inside a junction) gets the edge the junction leads to: the CAV is in SUMO and drives."""
+    route = route_from(mini, ":C_1_0", 1.0, ":C_1_0", 20.0)
+    assert all(mini.lane_internal[route.path])
+    with make_world(mini_net, mini) as world:
+        world.add_cav(route)
+        snaps = drive(world, 20, throttle=0.5)
+        assert world.cav_active.all() and snaps[-1].speed[snaps[-1].role == Role.CAV][0] > 1.0

@@ -25,6 +25,8 @@ from cmudrive.bench.route_sets import (
     select_subset,
 )
 from cmudrive.bench.routes import (
+    ActorSpec,
+    BackgroundSpec,
     CavSpec,
     RouteSpec,
     RouteSpecError,
@@ -42,6 +44,8 @@ __all__ = [
     "PENALTIES",
     "ROUTE_SET_PURPOSES",
     "SCENARIO_TYPES",
+    "ActorSpec",
+    "BackgroundSpec",
     "CavResult",
     "CavSpec",
     "CriteriaConfig",

@@ -28,7 +28,7 @@ import time
 import traceback
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -54,6 +54,7 @@ from cmudrive.bench.records import (
     RouteResult,
     record_stem,
 )
+from cmudrive.bench.route_actors import RouteActors
 from cmudrive.bench.routes import RouteSpec
 from cmudrive.bench.scenarios import ScenarioConfig, ScenarioError, ScenarioManager, build_scenarios
 from cmudrive.maps import MapError, RoadMap, Route, load_map, load_scenery
@@ -94,6 +95,14 @@ class EvalConfig:
             value = getattr(self, name)
             if not value > 0.0 or not np.isfinite(value):
                 raise ValueError(f"{name} must be a positive number of seconds, got {value}")
+
+
+def route_background(spec: RouteSpec, background: BackgroundConfig) -> BackgroundConfig:
+    """The background of one route: the evaluator's, with the route's own vehicle and pedestrian targets
+    where it gives them (an imported InterDrive route runs with none, as its source does)."""
+    if spec.background is None:
+        return background
+    return replace(background, vehicles=spec.background.vehicles, pedestrians=spec.background.pedestrians)
 
 
 def plan_cav_routes(spec: RouteSpec, road_map: RoadMap) -> list[Route]:
@@ -159,7 +168,7 @@ def _run_route(
     declared = check_observations(agent)
     privileged = Observation.PRIVILEGED in declared
     world_config = WorldConfig(town=str(town_path), seed=spec.seed, weather=spec.weather)
-    with populated_world(world_config, road_map, routes, config.background) as world:
+    with populated_world(world_config, road_map, routes, route_background(spec, config.background)) as world:
         cav_ids = list(world.cav_ids)
         scenery = load_scenery(road_map)  # what CAVs can hit and what hides actors from cameras
         criteria = RouteCriteria(road_map, routes, cav_ids, config.criteria, DT, scenery=scenery)
@@ -168,6 +177,7 @@ def _run_route(
         except ScenarioError as exc:
             _destroy(agent, config.step_timeout, hooks)
             raise RouteInputError(str(exc)) from exc
+        actors = RouteActors(spec, world)  # the route's own actors, apart from the scenarios
         recorder = _recorder(spec, routes, config)
         observer = ObservationBuilder(
             declared,
@@ -178,7 +188,7 @@ def _run_route(
             rng=np.random.default_rng([spec.seed, 1]),  # sensors' own stream: traffic is unchanged
             road_map=road_map,
         )
-        loop = _Loop(world, criteria, agent, observer, config, recorder, hooks, spec, scenarios)
+        loop = _Loop(world, criteria, agent, observer, config, recorder, hooks, spec, scenarios, actors)
         try:
             error = _drive(loop, scenarios, criteria, _setup(spec, road_map, routes, cav_ids, privileged))
             result = _final_result(spec, routes, loop, recorder, config, error)
@@ -300,9 +310,11 @@ class _Loop:
         hooks: RouteHooks,
         spec: RouteSpec,
         scenarios: ScenarioManager | None = None,
+        actors: RouteActors | None = None,
     ) -> None:
         self.world, self.criteria, self.agent = world, criteria, agent
         self.scenarios = scenarios or ScenarioManager([], [], [])
+        self.actors = actors
         self.observer, self.config, self.recorder = observer, config, recorder
         self.privileged = Observation.PRIVILEGED in observer.declared
         self.asks_partners = observer.network is not None
@@ -339,6 +351,8 @@ class _Loop:
             rows, index = _active_cavs(snap, world)
             controls = self._agent_step(snap, tick, rows, index)
             self.scenarios.update(snap)  # scripted actors move before the world ticks
+            if self.actors is not None:
+                self.actors.update(DT)  # and so do the route's own actors
             controls = self.scenarios.perturb(controls, index)  # ControlLoss noise on the CAVs' controls
             snap = world.tick(controls)  # the agent's controls were checked: a ControlError here is ours
             self._trace(snap, tick + 1)
@@ -450,4 +464,5 @@ __all__ = [
     "RouteInputError",
     "evaluate_route",
     "plan_cav_routes",
+    "route_background",
 ]

@@ -1,5 +1,7 @@
-"""The route data model: a route (:class:`RouteSpec`), its CAVs (:class:`CavSpec`) and scenarios
-(:class:`ScenarioSpec`), each checked when built, and the limits a route must keep (CAV count, seed,
+"""The route data model: a route (:class:`RouteSpec`), its CAVs (:class:`CavSpec`), scenarios
+(:class:`ScenarioSpec`), free actors (:class:`ActorSpec`: the pedestrians, bicycles, vehicles and props
+another benchmark's route places, apart from any scenario) and background density
+(:class:`BackgroundSpec`), each checked when built, and the limits a route must keep (CAV count, seed,
 route length, CAV starts). Reading and writing route files is :mod:`cmudrive.bench.routes`, which
 re-exports these names.
 """
@@ -20,7 +22,7 @@ from cmudrive.bench.records import route_id_problem
 from cmudrive.bench.scenario_types import SCENARIO_TYPES
 from cmudrive.maps import MapError, RoadMap, Route, RouteError, densify
 from cmudrive.maps.cache import resolve_map_path
-from cmudrive.maps.coords import carla_to_map
+from cmudrive.maps.coords import carla_to_map, carla_yaw_to_map
 from cmudrive.sim.actor_types import ACTOR_TYPES
 from cmudrive.sim.weather import WEATHERS
 
@@ -38,11 +40,16 @@ DETOUR_SLACK = 500.0  # [m]
 # ``routes check`` and ``eval`` both use it.
 TRIGGER_TOLERANCE = 2.0
 
-# CAV starts: two CAVs whose dense routes start on the same lane less than a CAV length apart, or whose
-# start points are closer than a CAV width whatever their lanes, would spawn overlapping (a collision at
-# tick 0, blamed on the agent); such a route is refused. Generated routes keep 15 m (route_gen).
-MIN_START_SPACING = ACTOR_TYPES["cav"].length  # [m] along a shared start lane
-MIN_START_DISTANCE = ACTOR_TYPES["cav"].width  # [m] between start points on any lanes
+# CAV starts: two CAVs whose footprints (a CAV's length x width at the start point and heading of its
+# dense route) overlap would spawn inside each other (a collision at tick 0, blamed on the agent); such a
+# route is refused. On one lane that is closer than a CAV length; side by side on neighbouring lanes
+# (InterDrive starts CAVs 3.5 m apart across a highway) it is not. Generated routes keep 15 m (route_gen).
+MIN_START_SPACING = ACTOR_TYPES["cav"].length  # [m] the footprint's length
+MIN_START_DISTANCE = ACTOR_TYPES["cav"].width  # [m] the footprint's width: closer centres always overlap
+
+MAX_ACTORS = 200  # [-] free actors per route (InterDrive has none, MDrive-style folders a handful)
+MAX_ACTOR_SPEED = 60.0  # [m/s] a free actor's speed (216 km/h: anything faster is a unit mistake)
+MAX_BACKGROUND = 1000  # [-] background vehicles or pedestrians a route may ask for
 
 # a scenario parameter's name (and the attribute names of a parameter element)
 _XML_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_.-]*$")
@@ -153,6 +160,90 @@ class ScenarioSpec:
         return float(xy[0]), float(xy[1]), float(yaw)
 
 
+@dataclass(frozen=True, eq=False)
+class ActorSpec:
+    """A free actor of a route: it appears when the route starts and, when it has two or more waypoints
+    and a positive speed, follows them as a polyline at that speed, then stands at the last one;
+    otherwise it stands at its first waypoint facing ``yaw`` for the whole route.
+
+    ``type`` is one of ``cmudrive.sim.actor_types.ACTOR_TYPES`` (not ``cav``): its kind decides the
+    collision key (a pedestrian, a vehicle, or layout for props). ``model`` keeps the CARLA blueprint the
+    actor stands for, for the record; ``static`` marks a prop or parked vehicle (``Role.PROP``)."""
+
+    id: str
+    type: str
+    waypoints: np.ndarray  # (n, 3) float64 CARLA world x, y, z [m], n >= 1, read-only
+    yaw: float = 0.0  # [deg] CARLA yaw of a standing actor (a moving one faces along its path)
+    speed: float = 0.0  # [m/s]
+    static: bool = False
+    model: str = ""
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.id, str) or route_id_problem(self.id) is not None:
+            raise RouteSpecError(f"actor id must be 1-255 printable characters, got {self.id!r}")
+        where = f"actor {self.id!r}"
+        if self.type not in ACTOR_TYPES or self.type == "cav":
+            known = ", ".join(t for t in ACTOR_TYPES if t != "cav")
+            raise RouteSpecError(f"{where}: unknown actor type {self.type!r}; known: {known}")
+        wps = np.array(self.waypoints, dtype=np.float64)
+        if wps.ndim != 2 or wps.shape[1] != 3 or len(wps) < 1:
+            raise RouteSpecError(f"{where}: waypoints must have shape (n, 3), n >= 1, got {wps.shape}")
+        if not np.all(np.isfinite(wps)):
+            raise RouteSpecError(f"{where}: a waypoint has a non-finite coordinate")
+        wps.flags.writeable = False
+        object.__setattr__(self, "waypoints", wps)
+        for name, top in (("yaw", math.inf), ("speed", MAX_ACTOR_SPEED)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | float | np.floating):
+                raise RouteSpecError(f"{where}: {name} must be a number, got {value!r}")
+            if not math.isfinite(value) or (name == "speed" and not 0.0 <= value <= top):
+                raise RouteSpecError(f"{where}: {name} must be finite (speed in 0..{top:g} m/s), got {value}")
+            object.__setattr__(self, name, float(value))
+        if not isinstance(self.model, str) or not isinstance(self.static, bool):
+            raise RouteSpecError(f"{where}: model must be a string and static a bool")
+
+    @property
+    def moves(self) -> bool:
+        """Follows its waypoints (two or more, a positive speed, not static) rather than standing."""
+        return not self.static and len(self.waypoints) >= 2 and self.speed > 0.0
+
+    def map_waypoints(self) -> np.ndarray:
+        """Waypoints in the map frame, shape (n, 2) [m]."""
+        return carla_to_map(self.waypoints[:, :2])
+
+    def map_yaw(self) -> float:
+        """``yaw`` in the map frame [rad]."""
+        return float(carla_yaw_to_map(self.yaw))
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, ActorSpec):
+            return NotImplemented
+        mine = (self.id, self.type, self.yaw, self.speed, self.static, self.model)
+        theirs = (other.id, other.type, other.yaw, other.speed, other.static, other.model)
+        return mine == theirs and np.array_equal(self.waypoints, other.waypoints)
+
+    def __hash__(self) -> int:
+        return hash((self.id, self.type, self.waypoints.tobytes()))
+
+
+@dataclass(frozen=True)
+class BackgroundSpec:
+    """The background a route asks for, overriding the evaluator's (``BackgroundConfig``): target numbers
+    of background vehicles and pedestrians around the CAVs (0 and 0: the CAVs and the route's own actors
+    only, as InterDrive's parameter file runs its scenarios)."""
+
+    vehicles: int
+    pedestrians: int
+
+    def __post_init__(self) -> None:
+        for name in ("vehicles", "pedestrians"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= MAX_BACKGROUND:
+                raise RouteSpecError(
+                    f"background {name} must be an integer in 0..{MAX_BACKGROUND}, got {value!r}"
+                )
+
+
 @dataclass(frozen=True)
 class RouteSpec:
     """One route: town (a town name, or a ``.net.xml`` path), weather preset, SUMO seed, CAVs ``0..N-1``
@@ -166,6 +257,8 @@ class RouteSpec:
     cavs: tuple[CavSpec, ...]
     scenarios: tuple[ScenarioSpec, ...] = ()
     town_dirs: tuple[str, ...] = field(default=(), compare=False)  # where a town name is looked up first
+    actors: tuple[ActorSpec, ...] = ()  # free actors, apart from the scenarios (imported benchmarks)
+    background: BackgroundSpec | None = None  # None: the evaluator's background
 
     def town_path(self) -> Path:
         """The network file of this route's town (MapError naming the route when there is none)."""
@@ -183,6 +276,7 @@ class RouteSpec:
             raise RouteSpecError(err, route_id=self.id)
         object.__setattr__(self, "cavs", tuple(self.cavs))
         object.__setattr__(self, "scenarios", tuple(self.scenarios))
+        object.__setattr__(self, "actors", tuple(self.actors))
 
     def _problem(self) -> str | None:
         if not isinstance(self.town, str) or not self.town:
@@ -202,6 +296,12 @@ class RouteSpec:
         dup = sorted({n for n in names if names.count(n) > 1})
         if dup:
             return f"duplicate scenario names {dup}"
+        if len(self.actors) > MAX_ACTORS:
+            return f"{len(self.actors)} actors, more than the {MAX_ACTORS} a route may have"
+        actor_ids = [a.id for a in self.actors]
+        dup = sorted({n for n in actor_ids if actor_ids.count(n) > 1})
+        if dup:
+            return f"duplicate actor ids {dup}"
         return None
 
     def map_waypoints(self, cav: int) -> np.ndarray:
@@ -237,27 +337,38 @@ class RouteSpec:
             pairs = ", ".join(f"CAVs {a} and {b} ({gap:.1f} m)" for a, b, gap in clashes[:5])
             more = f" and {len(clashes) - 5} more pairs" if len(clashes) > 5 else ""
             raise RouteError(
-                f"route {self.id!r} on {road_map.name!r}: {pairs}{more} start on top of each other (starts "
-                f"on one lane must be {MIN_START_SPACING:.2f} m apart, on any lanes "
-                f"{MIN_START_DISTANCE:.2f} m: a CAV length and width)"
+                f"route {self.id!r} on {road_map.name!r}: {pairs}{more} start on top of each other (their "
+                f"{MIN_START_SPACING:.2f} x {MIN_START_DISTANCE:.2f} m footprints at the start overlap: on "
+                f"one lane starts must be a CAV length apart)"
             )
         return routes
 
 
 def start_conflicts(routes: Sequence[Route]) -> list[tuple[int, int, float]]:
-    """Pairs of CAVs ``(i, j, distance between their start points [m])``, i < j, whose dense routes start
-    overlapping: on the same lane less than ``MIN_START_SPACING`` apart along it, or less than
-    ``MIN_START_DISTANCE`` apart in a straight line whatever the lanes (they would spawn in each other)."""
+    """Pairs of CAVs ``(i, j, distance between their start points [m])``, i < j, whose footprints at the
+    start of their dense routes overlap (``MIN_START_SPACING`` x ``MIN_START_DISTANCE`` boxes at the first
+    route point and heading; a separating-axis test): they would spawn inside each other. Two starts on one
+    lane less than a CAV length apart, or closer than a CAV width on any lanes, always overlap."""
     if len(routes) < 2:
         return []
     xy = np.array([r.xy[0] for r in routes])
-    lane = np.array([r.lane[0] for r in routes])
-    s = np.array([r.s[0] for r in routes])
+    yaw = np.array([r.heading[0] for r in routes])
     i, j = np.triu_indices(len(routes), k=1)  # at most 16 CAVs: 120 pairs
-    dist = np.hypot(*(xy[i] - xy[j]).T)
-    along = np.abs(s[i] - s[j])
-    bad = ((lane[i] == lane[j]) & (along < MIN_START_SPACING)) | (dist < MIN_START_DISTANCE)
-    return [(int(a), int(b), float(d)) for a, b, d in zip(i[bad], j[bad], dist[bad], strict=True)]
+    d = xy[j] - xy[i]  # (P, 2)
+    half = np.array([MIN_START_SPACING, MIN_START_DISTANCE]) / 2.0
+    fwd = np.stack([np.cos(yaw), np.sin(yaw)], axis=1)  # (N, 2) each footprint's axes
+    left = np.stack([-np.sin(yaw), np.cos(yaw)], axis=1)
+    separated = np.zeros(len(i), bool)
+    for axis in (fwd[i], left[i], fwd[j], left[j]):  # the four candidate separating axes, (P, 2) each
+        reach = sum(
+            h * np.abs(np.sum(u * axis, axis=1))
+            for k in (i, j)
+            for h, u in zip(half, (fwd[k], left[k]), strict=True)
+        )
+        separated |= np.abs(np.sum(d * axis, axis=1)) >= reach
+    dist = np.hypot(*d.T)
+    bad = ~separated
+    return [(int(a), int(b), float(g)) for a, b, g in zip(i[bad], j[bad], dist[bad], strict=True)]
 
 
 def _suggest(scenario_type: str) -> str:

@@ -41,10 +41,13 @@ import numpy as np
 
 from cmudrive.bench.records import route_id_problem
 from cmudrive.bench.route_spec import (
+    MAX_ACTORS,
     MAX_CAVS,
     MAX_COORDINATE,
     MAX_SEED,
     MIN_CAVS,
+    ActorSpec,
+    BackgroundSpec,
     CavSpec,
     ParamValue,
     RouteSpec,
@@ -160,9 +163,11 @@ def _route_from_xml(elem: ET.Element, min_cavs: int) -> RouteSpec:
                 "route file; convert it with cmudrive.bench.authoring.bench2drive.import_leaderboard_routes"
             )
     _check_attrs(elem, _ROUTE_ATTRS, "<route>")
-    unknown = sorted({c.tag for c in elem} - {"cav", "scenarios"})
+    unknown = sorted({c.tag for c in elem} - {"cav", "scenarios", "actors", "background"})
     if unknown:
-        raise RouteSpecError(f"unknown elements {unknown} in <route>; allowed: <cav>, <scenarios>")
+        raise RouteSpecError(
+            f"unknown elements {unknown} in <route>; allowed: <cav>, <scenarios>, <actors>, <background>"
+        )
     for attr in ("town", "weather"):
         if not elem.get(attr):
             raise RouteSpecError(f"missing {attr}")
@@ -186,6 +191,62 @@ def _route_from_xml(elem: ET.Element, min_cavs: int) -> RouteSpec:
         seed=seed,
         cavs=tuple(sorted(cavs, key=lambda c: c.id)),
         scenarios=tuple(scenarios),
+        actors=_actors_from_xml(elem),
+        background=_background_from_xml(elem),
+    )
+
+
+_ACTOR_ATTRS = frozenset({"id", "type", "yaw", "speed", "static", "model"})
+
+
+def _actors_from_xml(route: ET.Element) -> tuple[ActorSpec, ...]:
+    """The ``<actors>`` block: ``<actor id type [yaw] [speed] [static] [model]>`` with ``<position>``s."""
+    blocks = route.findall("actors")
+    if len(blocks) > 1:
+        raise RouteSpecError(f"{len(blocks)} <actors> elements; at most one")
+    elems = list(blocks[0]) if blocks else []
+    if len(elems) > MAX_ACTORS:
+        raise RouteSpecError(f"{len(elems)} actors, more than the {MAX_ACTORS} a route may have")
+    actors = []
+    for k, elem in enumerate(elems):
+        what = f"actor {elem.get('id') or k!r}"
+        if elem.tag != "actor":
+            raise RouteSpecError(f"unknown element <{elem.tag}> in <actors>")
+        _check_attrs(elem, _ACTOR_ATTRS, what)
+        bad = sorted({c.tag for c in elem} - {"position"})
+        if bad:
+            raise RouteSpecError(f"{what}: unknown elements {bad}; allowed: <position>")
+        static = elem.get("static", "false")
+        if static not in ("true", "false"):
+            raise RouteSpecError(f"{what}: static must be 'true' or 'false', got {static!r}")
+        try:
+            points = points_from_xml(elem.findall("position"))
+        except RouteSpecError as exc:
+            raise RouteSpecError(f"{what}: {exc.problem}") from None
+        actors.append(
+            ActorSpec(
+                id=elem.get("id") or "",
+                type=elem.get("type") or "",
+                waypoints=points,
+                yaw=_number(elem, "yaw", what, 0.0),
+                speed=_number(elem, "speed", what, 0.0),
+                static=static == "true",
+                model=elem.get("model", ""),
+            )
+        )
+    return tuple(actors)
+
+
+def _background_from_xml(route: ET.Element) -> BackgroundSpec | None:
+    """``<background vehicles pedestrians/>``, or None when the route has none."""
+    blocks = route.findall("background")
+    if not blocks:
+        return None
+    if len(blocks) > 1:
+        raise RouteSpecError(f"{len(blocks)} <background> elements; at most one")
+    _check_attrs(blocks[0], frozenset({"vehicles", "pedestrians"}), "<background>")
+    return BackgroundSpec(
+        *(_integer(blocks[0].get(k), f"<background> {k}", 10**6) for k in ("vehicles", "pedestrians"))
     )
 
 
@@ -317,12 +378,25 @@ def _route_to_xml(spec: RouteSpec) -> ET.Element:
             )
             for key, value in sc.params.items():
                 ET.SubElement(s, key, {"value": value} if isinstance(value, str) else dict(value))
+    if spec.actors:
+        block = ET.SubElement(elem, "actors")
+        for actor in spec.actors:
+            attrs = {"id": actor.id, "type": actor.type, "yaw": _num(actor.yaw), "speed": _num(actor.speed)}
+            attrs |= {"static": "true"} if actor.static else {}
+            attrs |= {"model": actor.model} if actor.model else {}
+            a = ET.SubElement(block, "actor", attrs)
+            for x, y, z in actor.waypoints:
+                ET.SubElement(a, "position", {"x": _num(x), "y": _num(y), "z": _num(z)})
+    if spec.background is not None:
+        bg = spec.background
+        ET.SubElement(elem, "background", {"vehicles": str(bg.vehicles), "pedestrians": str(bg.pedestrians)})
     return elem
 
 
 def route_sha256(spec: RouteSpec) -> str:
-    """SHA-256 of a route as a route file writes it: id, town, weather, seed, every CAV's waypoints and the
-    scenarios, not the folders its town is looked up in. Equal routes have equal hashes, whichever file
+    """SHA-256 of a route as a route file writes it: id, town, weather, seed, every CAV's waypoints, the
+    scenarios, the free actors and the background (a route without the last two hashes as before), not the
+    folders its town is looked up in. Equal routes have equal hashes, whichever file
     they were read from (a run's provenance records it per route)."""
     return hashlib.sha256(ET.tostring(_route_to_xml(spec), encoding="utf-8")).hexdigest()
 
@@ -371,6 +445,8 @@ def write_routes(
 __all__ = [
     "MAX_CAVS",
     "MIN_CAVS",
+    "ActorSpec",
+    "BackgroundSpec",
     "CavSpec",
     "RouteSpec",
     "RouteSpecError",

@@ -218,29 +218,54 @@ def routes_stats(
 
 @routes_app.command("import")
 def routes_import(
-    source: Annotated[Path, typer.Argument(help="Bench2Drive / Leaderboard-2.0 route file")],
+    source: Annotated[
+        Path,
+        typer.Argument(
+            help="Bench2Drive / Leaderboard-2.0 route file, or an InterDrive / MDrive scenario folder "
+            "(or a folder of them)"
+        ),
+    ],
     output: Annotated[Path, typer.Option("-o", "--output", help="our multi-CAV route file to write")],
     cavs: Annotated[
-        int, typer.Option(min=1, max=16, help="CAVs per route (CAV 0 drives the original route)")
+        int,
+        typer.Option(
+            min=1, max=16, help="CAVs per route (CAV 0 drives the original route); route files only"
+        ),
     ] = 2,
     town: Annotated[
         list[str] | None, typer.Option(help="extra town: name or .net.xml path (repeatable)")
     ] = None,
-    seed: Annotated[int, typer.Option(help="seed of the added CAVs")] = 0,
+    seed: Annotated[int, typer.Option(help="seed of the added CAVs (route files), SUMO seed (folders)")] = 0,
+    npc: Annotated[
+        bool,
+        typer.Option(
+            "--npc/--no-npc",
+            help="folders: InterDrive's NPC variant (50 background vehicles, 50 pedestrians), not none",
+        ),
+    ] = False,
 ) -> None:
-    """Import single-ego leaderboard routes (routes on towns we have no map of are skipped, with why)."""
-    from cmudrive.bench.authoring.bench2drive import import_leaderboard_routes
+    """Import single-ego leaderboard routes (routes on towns we have no map of are skipped, with why), or
+    multi-vehicle scenario folders: one route per folder, its ego files as CAVs, its other actors kept."""
+    from cmudrive.bench.authoring.bench2drive import ImportResult, import_leaderboard_routes
+    from cmudrive.bench.authoring.interdrive import import_scenario_folders
     from cmudrive.bench.routes import write_routes
 
     try:
-        result = import_leaderboard_routes(source, towns=town, extra_cavs=cavs - 1, seed=seed)
+        result: ImportResult
+        if source.is_dir():
+            result = import_scenario_folders(source, npc=npc, seed=seed, towns=town)
+        else:
+            result = import_leaderboard_routes(source, towns=town, extra_cavs=cavs - 1, seed=seed)
     except (OSError, ValueError, MapError) as exc:
         fail(exc)
     for route_id, reason in result.skipped:
-        err_console.print(f"[yellow]skipped route {route_id}:[/] {reason}")
+        err_console.print(f"[yellow]skipped route {route_id}:[/] {reason}", highlight=False)
+    for route_id, note in result.notes:
+        err_console.print(f"[cyan]changed {route_id}:[/] {note}", highlight=False)
     if not result.routes:
         fail(ValueError(f"no route of {source} could be imported"))
-    write_routes(result.routes, output, min_cavs=min(cavs, 2))
+    least = min(len(r.cavs) for r in result.routes)
+    write_routes(result.routes, output, min_cavs=min(least, 2))
     console.print(f"wrote {len(result.routes)} routes to {output} ({len(result.skipped)} skipped)")
 
 

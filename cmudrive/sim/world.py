@@ -223,8 +223,12 @@ class World:
             self._cav_in_sumo.discard(cav_id)
 
     def _route_edges(self, route: Route) -> list[str]:
-        """The SUMO edges of a route, from its planned lane path (its 1 m points can skip short edges)."""
-        names = self.map.edge_ids[self.map.lane_edge[route.path]]
+        """The SUMO edges of a route, from its planned lane path (its 1 m points can skip short edges); a
+        route inside one junction (InterDrive's shortest) gets the edge its last lane leads to."""
+        path = list(route.path)
+        while all(self.map.lane_internal[path]) and len(self.map.successors(path[-1])) and len(path) < 64:
+            path.append(int(self.map.successors(path[-1])[0]))
+        names = self.map.edge_ids[self.map.lane_edge[path]]
         edges: list[str] = []
         for name in names.tolist():
             if not name.startswith(":") and (not edges or edges[-1] != name):

@@ -40,13 +40,15 @@ DEFAULT_WEATHER = "ClearNoon"  # a route without <weathers>: CARLA's default sky
 
 @dataclass(frozen=True)
 class ImportResult:
-    """Routes converted, and ``(route_id, reason)`` for every route left out."""
+    """Routes converted, ``(route_id, reason)`` for every route left out, and ``(route_id, note)`` for what
+    a kept route changed from its source (``interdrive.repair_keypoints``)."""
 
     routes: list[RouteSpec] = field(default_factory=list)
     skipped: list[tuple[str, str]] = field(default_factory=list)
+    notes: list[tuple[str, str]] = field(default_factory=list)
 
 
-def _town_table(towns: Iterable[str] | None) -> dict[str, tuple[str, ...]]:
+def town_table(towns: Iterable[str] | None) -> dict[str, tuple[str, ...]]:
     """Town name as route files spell it -> the folders to look it up in before the committed towns (a
     network file ``nets/Town03.net.xml`` serves the routes of ``Town03``; they keep the name ``Town03``,
     so the written file can be moved: evaluate it with the network beside it or ``--town-dir nets``)."""
@@ -93,7 +95,7 @@ def import_leaderboard_routes(
     not depend on the order of the file. A file that cannot be read at all raises RouteSpecError."""
     if not 0 <= extra_cavs <= MAX_CAVS - 1:
         raise ValueError(f"extra_cavs must be in 0..{MAX_CAVS - 1}, got {extra_cavs}")
-    table = _town_table(towns)
+    table = town_table(towns)
     root = parse_xml(path, "routes")
     result = ImportResult()
     maps: dict[str, RoadMap] = {}
@@ -138,4 +140,4 @@ def import_leaderboard_routes(
     return result
 
 
-__all__ = ["ImportResult", "import_leaderboard_routes"]
+__all__ = ["ImportResult", "import_leaderboard_routes", "town_table"]
