@@ -181,3 +181,38 @@ def test_route_actors_stand_in_the_world_and_are_hit_as_their_blueprint_says() -
     hits = [{k: len(v) for k, v in cav.infractions.items() if v} for cav in result.cavs]
     assert hits[0].get("collisions_vehicle", 0) >= 1 and "collisions_layout" not in hits[0]
     assert hits[1].get("collisions_layout", 0) >= 1 and "collisions_vehicle" not in hits[1]
+
+
+class _LightWatcher(PidAgent):
+    """The blind PID driver, noting every signal character the world shows (privileged snapshot)."""
+
+    observations: ClassVar[frozenset[Observation]] = frozenset(
+        {Observation.EGO_STATE, Observation.PRIVILEGED}
+    )
+    seen: ClassVar[set[str]] = set()
+
+    def run_step(self, obs: Observations) -> Controls:
+        assert obs.snapshot is not None
+        for state in obs.snapshot.tls_state.tolist():
+            type(self).seen.update(state)
+        return super().run_step(obs)
+
+
+def test_a_route_with_its_lights_off_shows_no_signal_and_charges_no_red_light() -> None:
+    """smoke_00 crosses downtown's signalised junctions: with the lights running, red signals show within
+    20 s; with ``lights="off"`` (InterDrive's routes) every light is off from the first tick (SUMO's 'o'
+    minor / 'O' major), so the blind PID driver, which ignores lights, runs no red light."""
+    from dataclasses import replace
+
+    from cmudrive.bench.routes import BackgroundSpec, read_routes
+
+    smoke = Path(__file__).parents[1] / "cmudrive" / "assets" / "routes" / "smoke.xml"
+    spec = replace(read_routes(smoke)[0], background=BackgroundSpec(0, 0))
+    seen, reds = {}, {}
+    for lights in ("on", "off"):
+        _LightWatcher.seen = set()
+        result = evaluate_route(replace(spec, lights=lights), _LightWatcher, EvalConfig(tick_cap=400))
+        seen[lights] = _LightWatcher.seen
+        reds[lights] = sum(len(c.infractions.get("red_light", [])) for c in result.cavs)
+    assert "r" in seen["on"]
+    assert seen["off"] <= {"o", "O"} and reds["off"] == 0

@@ -252,3 +252,19 @@ def test_expert_is_deterministic_with_traffic() -> None:
     a.pop("wall_time")
     b.pop("wall_time")
     assert a == b
+
+
+@pytest.mark.parametrize("state", ["o", "O"])
+def test_a_light_switched_off_is_driven_through_like_a_green(downtown: RoadMap, state: str) -> None:
+    """A route's lights switched off (``RouteSpec.lights``): SUMO shows 'o' on minor links (give way to
+    the links with priority, as on a minor green) and 'O' on major ones. Neither is a red light; with the
+    junction empty the expert keeps going."""
+    m = downtown
+    lane = str(m.lane_ids[m.stop_lane[np.flatnonzero(m.stop_kind == StopKind.TRAFFIC_LIGHT)[0]]])
+    route, line = route_through(m, lane)
+    agent = expert_for(m, [route])
+    _, obs = scene(route, line - 30.0, 8.0, tls=lights_all(m, state))
+    controls = agent.run_step(obs)
+    assert agent.decision is not None
+    assert agent.decision.reason[0] not in (Reason.RED_LIGHT, Reason.YELLOW_LIGHT, Reason.YIELD)
+    assert controls.brake[0] == 0.0

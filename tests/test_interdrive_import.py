@@ -91,6 +91,7 @@ def test_interdrive_folder_becomes_one_route_with_egos_in_file_number_order(
     (spec,) = result.routes
     assert spec.id == "r99_town05_ins_c" and spec.town == "Town05" and spec.weather == "ClearNoon"
     assert spec.background == NO_BACKGROUND and spec.actors == ()
+    assert spec.lights == "off"  # turn_off_light: the CAVs negotiate the junctions without signals
     assert len(spec.cavs) == 3
     for k, (ln, s) in starts.items():
         assert tuple(spec.cavs[k].waypoints[0, :2]) == carla(town05, ln, s)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import pickle
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -74,10 +75,12 @@ def test_round_trip_is_exact_and_rewrites_byte_identically(tmp_path: Path) -> No
             "b & <c>", "nets/Town03.net.xml", "ClearNight", 0, (CavSpec(0, wps), CavSpec(1, wps[::-1]))
         ),
     ]
+    routes.append(replace(routes[0], id="lights off", lights="off"))
     path = tmp_path / "out" / "routes.xml"
     write_routes(routes, path, comment="made by a test\nsecond line")
     back = read_routes(path)
     assert back == routes
+    assert [r.lights for r in back] == ["on", "on", "off"] and path.read_text().count('lights="off"') == 1
     assert back[0].scenarios[1].params["source_dist_interval"] == {"from": "20", "to": "50"}
     assert back[0].scenarios[0].params["distance"] == "42"
     write_routes(back, tmp_path / "again.xml", comment="made by a test\nsecond line")
@@ -105,6 +108,11 @@ SEVENTEEN = _cavs_xml(*range(17))
 BAD_ROUTES = {
     "missing town": (_route_xml(attrs='weather="ClearNoon"'), None, "missing town"),
     "unknown weather": (_route_xml(attrs='town="downtown" weather="Sunny"'), None, "unknown weather 'Sunny'"),
+    "unknown lights": (
+        _route_xml(attrs='town="downtown" weather="ClearNoon" lights="blinking"'),
+        None,
+        "lights must be one of on, off, got 'blinking'",
+    ),
     "missing waypoints": (
         _route_xml(
             cavs='<cav id="0"><waypoints><position x="1" y="2"/><position x="3" y="4"/></waypoints></cav>'

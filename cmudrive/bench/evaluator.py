@@ -170,6 +170,8 @@ def _run_route(
     world_config = WorldConfig(town=str(town_path), seed=spec.seed, weather=spec.weather)
     with populated_world(world_config, road_map, routes, route_background(spec, config.background)) as world:
         cav_ids = list(world.cav_ids)
+        if spec.lights == "off":  # before the first tick: the route never sees a signal
+            world.lights.switch_off()
         scenery = load_scenery(road_map)  # what CAVs can hit and what hides actors from cameras
         criteria = RouteCriteria(road_map, routes, cav_ids, config.criteria, DT, scenery=scenery)
         try:

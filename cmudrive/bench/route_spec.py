@@ -47,6 +47,7 @@ TRIGGER_TOLERANCE = 2.0
 MIN_START_SPACING = ACTOR_TYPES["cav"].length  # [m] the footprint's length
 MIN_START_DISTANCE = ACTOR_TYPES["cav"].width  # [m] the footprint's width: closer centres always overlap
 
+LIGHTS = ("on", "off")  # RouteSpec.lights
 MAX_ACTORS = 200  # [-] free actors per route (InterDrive has none, MDrive-style folders a handful)
 MAX_ACTOR_SPEED = 60.0  # [m/s] a free actor's speed (216 km/h: anything faster is a unit mistake)
 MAX_BACKGROUND = 1000  # [-] background vehicles or pedestrians a route may ask for
@@ -259,6 +260,10 @@ class RouteSpec:
     town_dirs: tuple[str, ...] = field(default=(), compare=False)  # where a town name is looked up first
     actors: tuple[ActorSpec, ...] = ()  # free actors, apart from the scenarios (imported benchmarks)
     background: BackgroundSpec | None = None  # None: the evaluator's background
+    # "on": every traffic light runs its program; "off": all switched off for the whole route (SUMO's "off"
+    # program: each junction's right of way applies, minor links yield; no light can be run), as
+    # InterDrive's runs hold its lights (``turn_off_light``)
+    lights: str = "on"
 
     def town_path(self) -> Path:
         """The network file of this route's town (MapError naming the route when there is none)."""
@@ -283,6 +288,8 @@ class RouteSpec:
             return "missing town"
         if self.weather not in WEATHERS:
             return f"unknown weather {self.weather!r}; valid: {', '.join(WEATHERS)}"
+        if self.lights not in LIGHTS:
+            return f"lights must be one of {', '.join(LIGHTS)}, got {self.lights!r}"
         if isinstance(self.seed, bool) or not isinstance(self.seed, int | np.integer):
             return f"seed must be an integer in 0..{MAX_SEED}, got {self.seed!r}"
         if not 0 <= self.seed <= MAX_SEED:

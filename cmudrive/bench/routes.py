@@ -72,7 +72,7 @@ _FLOAT = re.compile(  # (nan and inf pass here to be refused as non-finite)
 _XML_SPACE = " \t\r\n"  # what XML calls white space (a no-break space is not)
 
 # attributes an XML route file may hold
-_ROUTE_ATTRS = frozenset({"id", "town", "weather", "seed"})
+_ROUTE_ATTRS = frozenset({"id", "town", "weather", "seed", "lights"})
 _POSITION_ATTRS = frozenset({"x", "y", "z", "pitch", "roll", "yaw"})  # pitch/roll/yaw are ignored
 _TRIGGER_ATTRS = frozenset({"x", "y", "z", "yaw", "pitch", "roll"})  # pitch/roll are ignored
 
@@ -193,6 +193,7 @@ def _route_from_xml(elem: ET.Element, min_cavs: int) -> RouteSpec:
         scenarios=tuple(scenarios),
         actors=_actors_from_xml(elem),
         background=_background_from_xml(elem),
+        lights=str(elem.get("lights", "on")),
     )
 
 
@@ -362,9 +363,8 @@ def _num(value: float) -> str:
 
 
 def _route_to_xml(spec: RouteSpec) -> ET.Element:
-    elem = ET.Element(
-        "route", {"id": spec.id, "town": spec.town, "weather": spec.weather, "seed": str(spec.seed)}
-    )
+    attrs = {"id": spec.id, "town": spec.town, "weather": spec.weather, "seed": str(spec.seed)}
+    elem = ET.Element("route", attrs | ({"lights": spec.lights} if spec.lights != "on" else {}))
     for cav in spec.cavs:
         wps = ET.SubElement(ET.SubElement(elem, "cav", {"id": str(cav.id)}), "waypoints")
         for x, y, z in cav.waypoints:
@@ -395,9 +395,9 @@ def _route_to_xml(spec: RouteSpec) -> ET.Element:
 
 def route_sha256(spec: RouteSpec) -> str:
     """SHA-256 of a route as a route file writes it: id, town, weather, seed, every CAV's waypoints, the
-    scenarios, the free actors and the background (a route without the last two hashes as before), not the
-    folders its town is looked up in. Equal routes have equal hashes, whichever file
-    they were read from (a run's provenance records it per route)."""
+    scenarios, the free actors, the background and the lights (a route without the last three hashes as
+    before), not the folders its town is looked up in. Equal routes have equal hashes, whichever file they
+    were read from (a run's provenance records it per route)."""
     return hashlib.sha256(ET.tostring(_route_to_xml(spec), encoding="utf-8")).hexdigest()
 
 

@@ -56,6 +56,15 @@ class TrafficLights:
         """(L,) one signal character per map link ('O' where the link has no light)."""
         return link_states(self.map, tls_state)
 
+    def switch_off(self) -> None:
+        """Switch every light off for good (SUMO's built-in ``off`` program): a junction then runs by its
+        right of way, its minor links show ``o`` (yield) and its major ones ``O``; no signal is red, so no
+        light can be run. For routes whose source runs without lights (``RouteSpec.lights``)."""
+        import libsumo
+
+        for tls in self.ids:
+            libsumo.trafficlight.setProgram(tls, "off")
+
     def force(self, tls_id: str, state: str) -> None:
         """Hold ``tls_id`` at ``state`` (one character per signal index) until :meth:`release`; signals
         going from green to red show yellow for ``YELLOW_TIME`` first."""

@@ -335,10 +335,12 @@ class ExpertAgent(Agent):
                 line_gap = gap if gap > 0.0 else float(rear_all[a, e])  # what is left to stop in
                 kind = int(p.entry_kind[cav, e])
                 term, why = np.inf, Reason.NONE
-                permissive = False  # a minor green ('g'): go, but give way to the links with priority
+                # a minor green ('g') or a light switched off on a minor link ('o'): go, but give way to
+                # the links with priority
+                permissive = False
                 if kind == EntryKind.LIGHT:
                     state = link_state(self.road_map, snap.tls_state, int(p.entry_link[cav, e]))
-                    permissive = state == "g"
+                    permissive = state in ("g", "o")
                     if state in ("r", "u") and (gap > 0.0 or v[a] ** 2 / (2.0 * line_gap) < 0.9 * hard):
                         why = Reason.RED_LIGHT  # (past the line and too fast to stop in time: go on)
                     elif state == "y" and v[a] ** 2 / (2.0 * c.yellow_decel) < gap:

@@ -18,7 +18,9 @@ collision with it is charged as CARLA would (pedestrian 0.5, vehicle 0.6, layout
 bicycles and NPC vehicles follow their waypoints at their speed, static props and parked vehicles stand
 where they are placed. The town is the routes' ``town``; the weather the ego files' ``<weather>`` or, as
 CARLA's leaderboard does without one, a sun 70 deg up under 30 % cloud (our ``ClearNoon``); the background
-is InterDrive's parameter file's: none (``NO_BACKGROUND``), or ``NPC_BACKGROUND`` for its NPC variant.
+is InterDrive's parameter file's: none (``NO_BACKGROUND``), or ``NPC_BACKGROUND`` for its NPC variant; its
+lights are off (``lights="off"``: the source holds every light green, so the CAVs must negotiate each
+junction; ours run without signals, by the junction's right of way).
 Every CAV route is planned on our import of the town before the route is kept, so a vehicle that cannot
 be planned is an error naming the scenario, the vehicle and its file.
 """
@@ -50,6 +52,9 @@ from cmudrive.sim.weather import weather_from_carla
 MANIFEST = "actors_manifest.json"
 NO_BACKGROUND = BackgroundSpec(vehicles=0, pedestrians=0)  # scenario_parameter_Interdrive(_no_npc).yaml
 NPC_BACKGROUND = BackgroundSpec(vehicles=50, pedestrians=50)  # scenario_parameter_Interdrive_npc.yaml
+# all three parameter files set turn_off_light: every light held green, the CAVs negotiate each junction;
+# ours are switched off for the route (RouteSpec.lights), so its right of way applies
+SOURCE_LIGHTS = "off"
 CARLA_DEFAULT_WEATHER = {"sun_altitude_angle": 70.0, "cloudiness": 30.0}  # a route without <weather>
 
 # role -> (the CARLA model it stands for when none is given, its speed [m/s] when none is given)
@@ -331,6 +336,7 @@ def _read_scenario(
             town_dirs=table[town],
             actors=tuple(actors),
             background=background,
+            lights=SOURCE_LIGHTS,
         )
     except RouteSpecError as exc:
         raise exc.within(path=str(folder), route_id=scenario) from None
