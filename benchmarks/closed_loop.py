@@ -38,12 +38,17 @@ def main() -> None:
         "--agent-option", action="append", default=[], help="KEY=VALUE for the agent's constructor (JSON)"
     )
     args = parser.parse_args()
-    for name in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
-        os.environ[name] = str(args.threads)
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # as cmudrive.bench.runner's workers
-    from cmudrive.bench.runner import OMP_SPIN_COUNT  # loads no OpenMP runtime yet: the setting applies
+    from cmudrive.bench.runner import (  # loads no OpenMP runtime yet
+        OMP_SPIN_COUNT,
+        WORKER_THREAD_VARIABLES,
+        limit_numba_threads,
+    )
 
+    for name in WORKER_THREAD_VARIABLES:  # as cmudrive.bench.runner's workers
+        os.environ[name] = str(args.threads)
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     os.environ.setdefault("GOMP_SPINCOUNT", str(OMP_SPIN_COUNT))
+    limit_numba_threads()  # starts numba's OpenMP runtime: after its settings
 
     from cmudrive.agents.base import agent_factory, load_agent_class
     from cmudrive.bench.evaluator import EvalConfig, RouteHooks, evaluate_route

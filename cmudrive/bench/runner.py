@@ -71,6 +71,8 @@ ROUTES_DIR = "routes"
 PROGRESS_EVERY = 20  # ticks between progress messages (and partial scores) from a worker
 WATCHDOG_GRACE = 5.0  # [s] added to the agent's time limits before its worker is killed
 SIM_SILENCE = 300.0  # [s] our own code silent this long (no tick, no phase change) counts as hung
+# the thread counts a worker sets to its share of the cores (a value the user exported wins)
+WORKER_THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMBA_NUM_THREADS")
 OMP_SPIN_COUNT = 200_000  # spins of an idle libgomp thread before it sleeps (~0.1-1 ms; libgomp's own
 # default is 300,000 when no wait policy is set, and without end under OMP_WAIT_POLICY=ACTIVE)
 # what a worker is running, as stored in its shared phase slot; "compile": numba compiles or loads a
@@ -335,6 +337,16 @@ class _Running:
         return record
 
 
+def limit_numba_threads() -> None:
+    """Numba read ``NUMBA_NUM_THREADS`` when this module imported it, before a worker could set it: apply
+    the value in the environment now (its parallel kernels run on the calling thread's count)."""
+    import numba
+
+    most = int(numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]  # set at import, from the env
+    wanted = int(os.environ.get("NUMBA_NUM_THREADS", most))
+    numba.set_num_threads(max(1, min(wanted, most)))
+
+
 def _worker(task: RouteTask, messages: Any, beat: Any, threads: int = 1, parent: int | None = None) -> None:
     """Body of a worker process: run the route, send progress, partial scores and the result (as
     JSON-ready data), and keep ``beat`` (the phase and since when) current for the parent's watchdog.
@@ -348,13 +360,16 @@ def _worker(task: RouteTask, messages: Any, beat: Any, threads: int = 1, parent:
     (a V2V-VLA tick with 16 CAVs took 300 ms instead of 80 ms), while threads that sleep at once pay a
     wake-up per parallel region, hundreds per forward pass of a small model: with ``GOMP_SPINCOUNT``
     (libgomp, torch's and numba's runtime on Linux; it takes precedence over the wait policy) at
-    OMP_SPIN_COUNT a 16-CAV tick takes 45.9 ms instead of 62.1 ms (``benchmarks/closed_loop.py``)."""
+    OMP_SPIN_COUNT a 16-CAV tick takes 45.9 ms instead of 62.1 ms (``benchmarks/closed_loop.py``). Numba's
+    parallel kernels (the camera) take the same share (``NUMBA_NUM_THREADS``): left at one per core, they
+    share torch's libgomp and, with every core busy, a 3-CAV V2V-VLA tick took 485 ms instead of 31 ms."""
     if parent is not None:
         beat[2] = float(hold_descendants(parent))  # first: the guard must not inherit the limits below
-    for name in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+    for name in WORKER_THREAD_VARIABLES:
         os.environ.setdefault(name, str(threads))
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # other OpenMP runtimes: sleep at once
     os.environ.setdefault("GOMP_SPINCOUNT", str(OMP_SPIN_COUNT))
+    limit_numba_threads()  # starts numba's OpenMP runtime: after its settings
     if task.max_memory is not None:
         limit = int(task.max_memory * 2**30)
         resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
