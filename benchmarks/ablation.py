@@ -22,10 +22,8 @@ import numpy as np
 import torch
 
 from cmudrive.data.schema import packed_to_rgb
-from cmudrive.data.shards import load_shards
 from cmudrive.model import V2VVLA
-from cmudrive.model.dataset import DrivingDataset, split_routes
-from cmudrive.model.row import TRAIN_COLUMNS
+from cmudrive.model.dataset import DrivingDataset, load_rows, split_routes
 from cmudrive.model.train import TrainConfig
 
 Variant = Callable[[dict[str, Any]], dict[str, Any]]
@@ -36,7 +34,7 @@ def held_out_rows(
 ) -> tuple[Any, list[dict[str, Any]], list[dict[str, Any]]]:
     """(the validation rows of ``cmudrive train``'s default split - same routes, seed 0 -, every k-th of
     them up to ``limit`` as decoded rows, and every row with a labelled partner as decoded rows)."""
-    ds = load_shards(data, (*TRAIN_COLUMNS, *extra))
+    ds = load_rows(data, extra)
     route_of = np.asarray(ds["route_id"])
     split = TrainConfig(data=data, out="unused")  # cmudrive train's defaults: the same held-out routes
     routes = split_routes(sorted(set(route_of.tolist())), split.val_fraction, split.seed)

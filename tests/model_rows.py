@@ -17,6 +17,7 @@ def make_row(i: int, seed: int = 0) -> dict[str, Any]:
         "camera": Image.fromarray(rng.integers(0, 256, (128, 256, 3), dtype=np.uint8)),
         "merged_bev": Image.fromarray(rng.integers(0, 256, (192, 128, 3), dtype=np.uint8)),
         "speed": 2.0 + i,
+        "standing": -1.0,  # [s] it moves (cmudrive.model.row.MOVING)
         "target_points": [[12.0, 0.5 * i], [35.0, -1.5 * i]],
         "other_cavs": [[3, 12.0, -3.5, 0.1], [7, 95.0, 0.0, 0.0], [2, -6.0, 1.0, 3.1]][: 1 + i % 3],
         "path": forward,

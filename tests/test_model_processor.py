@@ -166,6 +166,17 @@ def test_speed_is_stated_unless_the_configuration_or_a_dropped_row_leaves_it_out
     assert torch.equal(blind([row]).input_ids, blind([{**row, "speed": 0.0}]).input_ids)
 
 
+def test_standing_time_is_stated_while_the_cav_stands_rounded_down_to_half_seconds() -> None:
+    clocked = VLAProcessor.from_config(get_config("tiny", speed_in_prompt=False, standing_in_prompt=True))
+    row = make_row(1)
+    assert "Stopped" not in clocked.prompt(row)  # standing -1: it moves, and nothing says how fast
+    assert "\nStopped for 0.0 s. Target waypoint:" in clocked.prompt({**row, "standing": 0.0})
+    assert "Stopped for 2.5 s. " in clocked.prompt({**row, "standing": 2.74})  # 4 Hz rows and 20 Hz ticks
+    assert "Stopped for 2.5 s. " in clocked.prompt({**row, "standing": 2.5})  # read alike
+    assert "Stopped for 30.0 s. " in clocked.prompt({**row, "standing": 95.0})  # capped
+    assert "Stopped" not in VLAProcessor.from_config(get_config("tiny")).prompt({**row, "standing": 3.0})
+
+
 def test_baseline_takes_no_bev_no_other_cavs_no_communication(baseline: VLAProcessor) -> None:
     row = make_row(1)
     batch = baseline([row])

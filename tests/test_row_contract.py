@@ -113,15 +113,37 @@ def test_the_agent_builds_the_rows_collection_stores(collected: tuple[Any, dict]
     assert moved > 0  # the route reaches target points, so their hand-over is compared too
 
 
+def test_training_derives_the_standing_time_the_closed_loop_counts(collected: tuple[Any, dict]) -> None:
+    """Training derives ``standing`` from the stored 4 Hz rows, the closed loop counts it every tick: the
+    same where the CAV moves (-1), at most one sample interval (0.25 s) apart where it stands."""
+    from cmudrive.model.row import MOVING, standing_seconds
+
+    ds, agent_rows = collected
+    derived = standing_seconds(
+        np.asarray(ds["route_id"]), np.asarray(ds["cav"]), np.asarray(ds["time"]), np.asarray(ds["speed"])
+    )
+    keys = zip(ds["cav"], ds["tick"], strict=True)
+    counted = np.array([agent_rows[(c, t)][0]["standing"] for c, t in keys])
+    moving = derived == MOVING
+    assert np.array_equal(counted == MOVING, moving)
+    assert (~moving).sum() >= 2  # both CAVs stand at the start: the standing rows are compared too
+    lag = counted[~moving] - derived[~moving]
+    assert lag.min() >= -1e-6 and lag.max() < 0.25 + 1e-6, lag
+
+
 def test_the_prompt_and_pixels_the_model_reads_are_the_same(collected: tuple[Any, dict]) -> None:
     pytest.importorskip("transformers", reason="the processor's tokenizer needs the 'model' extra")
     from cmudrive.model import get_config
     from cmudrive.model.processor import VLAProcessor
+    from cmudrive.model.row import standing_seconds
 
     ds, agent_rows = collected
+    standing = standing_seconds(
+        np.asarray(ds["route_id"]), np.asarray(ds["cav"]), np.asarray(ds["time"]), np.asarray(ds["speed"])
+    )
     processor = VLAProcessor.from_config(get_config("tiny"))
     for i in range(0, len(ds), 7):
-        stored = ds[i]
+        stored = ds[i] | {"standing": float(standing[i])}
         row, _ = agent_rows[(stored["cav"], stored["tick"])]
         assert processor.prompt(row) == processor.prompt(stored)
         assert np.array_equal(processor.pixel_values(row), processor.pixel_values(stored))
@@ -171,3 +193,33 @@ def test_the_stored_columns_decode_to_the_model_rows() -> None:
     assert builder.target_points(obs) is inputs.target_points  # once per tick: the same answer again
     with pytest.raises(ValueError, match="other CAVs"):
         builder.target_points(replace(obs, cav_index=np.array([0, 1])))
+
+
+def test_the_standing_clock_counts_from_the_first_tick_below_a_tenth_of_a_metre_per_second() -> None:
+    """CAV 0 brakes to a stand at 2.0 s and drives off at 5.0 s; CAV 1 drives on. The clock counts every
+    tick; the derivation from 4 Hz rows of the same drive starts at the first standing row."""
+    from cmudrive.model.row import MOVING, StandingClock, standing_seconds
+
+    dt = 0.05
+    times = np.arange(0, 121) * dt  # 0 .. 6 s
+    speed0 = np.where((times >= 2.0 - 1e-9) & (times < 5.0 - 1e-9), 0.05, 3.0)
+    clock = StandingClock(2)
+    both = np.array([0, 1])
+    drive = zip(times, speed0, strict=True)
+    counted = np.array([clock.update(both, t, np.array([v, 8.0])) for t, v in drive])
+    assert counted[times.searchsorted(1.95), 0] == MOVING
+    assert counted[times.searchsorted(4.6 - 1e-9), 0] == pytest.approx(2.6, abs=1e-6)
+    assert counted[times.searchsorted(5.0 - 1e-9), 0] == MOVING  # it drives off: the clock is reset
+    assert (counted[:, 1] == MOVING).all()
+    sampled = np.arange(3, 121, 5)  # the collector's rows every 5th tick, from an offset: 0.15, 0.4, ...
+    rows_cav = np.repeat([0, 1], len(sampled))
+    rows_t = np.tile(times[sampled], 2)
+    rows_v = np.concatenate([speed0[sampled], np.full(len(sampled), 8.0)])
+    order = np.random.default_rng(0).permutation(len(rows_cav))  # any order of rows
+    derived = np.empty(len(order), np.float32)
+    derived[order] = standing_seconds(np.full(len(order), "r"), rows_cav[order], rows_t[order], rows_v[order])
+    first = sampled[times[sampled] >= 2.0][0]  # the first standing row: 2.15 s
+    at = np.flatnonzero(sampled == first + 50)[0]  # 2.5 s later
+    assert derived[at] == pytest.approx(2.5, abs=1e-6)
+    assert counted[first + 50, 0] - derived[at] == pytest.approx(0.15, abs=1e-6)  # within one interval
+    assert (derived[len(sampled) :] == MOVING).all()

@@ -390,3 +390,23 @@ def test_a_compiled_run_trains_the_same_weights_under_the_same_names(data: Path,
     compiled = load_file(str(tmp_path / "compiled" / "model" / "model.safetensors"))
     assert set(compiled) == set(eager)
     assert max(float((eager[k] - compiled[k]).abs().max()) for k in eager) < 1e-4
+
+
+def test_fine_tuning_starts_from_saved_weights_and_may_add_standing_time(data: Path, tmp_path: Path) -> None:
+    from cmudrive.model.train import init_weights
+
+    first = tmp_path / "first"
+    train(config(data, first, max_steps=2, keep_checkpoints=1), progress=False)
+    saved = V2VVLA.from_pretrained(first / "model")
+    tuned = V2VVLA.from_config(config(data, tmp_path / "x", standing_input=True).model_config())
+    init_weights(tuned, first / "model")
+    assert tuned.config.standing_in_prompt and not saved.config.standing_in_prompt
+    for name, tensor in saved.state_dict().items():
+        assert torch.equal(tuned.state_dict()[name], tensor), name
+    args = ["train", "--data", str(data), "--max-steps", "1", "--batch-size", "2", "--no-speed-input"]
+    start = ["--init-from", str(first / "model")]
+    ok = CliRunner().invoke(app, [*args, "--out", str(tmp_path / "tuned"), *start])
+    assert ok.exit_code == 0, ok.output
+    refused = CliRunner().invoke(app, [*args, "--baseline", "--out", str(tmp_path / "b"), *start])
+    assert refused.exit_code == 1
+    assert f"--init-from {first / 'model'}: a cooperative model" in " ".join(refused.output.split())

@@ -52,6 +52,17 @@ def train_model(
     speed_input: Annotated[
         bool, typer.Option(help="the prompt states the CAV's speed (SimLingo); --no-speed-input: never")
     ] = True,
+    standing_input: Annotated[
+        bool,
+        typer.Option(help='the prompt says how long the CAV stood ("Stopped for 2.5 s.", docs/model.md)'),
+    ] = False,
+    init_from: Annotated[
+        Path | None,
+        typer.Option(
+            help="start from the weights of this model folder (a run's model/; same configuration sizes) "
+            "instead of fresh ones: fine-tuning"
+        ),
+    ] = None,
     speed_dropout: Annotated[
         float, typer.Option(help="share of training rows whose prompt leaves the speed out")
     ] = 0.0,
@@ -108,6 +119,8 @@ def train_model(
             standing_keep=standing_keep,
             communication_repeat=communication_repeat,
             speed_input=speed_input,
+            standing_input=standing_input,
+            init_from=str(init_from) if init_from else None,
             speed_dropout=speed_dropout,
             bucket_power=bucket_power,
             num_workers=num_workers,

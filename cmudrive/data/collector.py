@@ -184,7 +184,7 @@ class CollectingAgent(Agent):
         decision = self.expert.decision
         assert decision is not None and obs.snapshot is not None
         self.trace.add(obs.tick, obs, decision)
-        self.row_builder.target_points(obs)  # progress along the plan advances every tick, as in closed loop
+        self.row_builder.advance(obs)  # progress and standing clocks advance every tick, as in closed loop
         self.active[:] = False
         self.active[obs.cav_index] = True
         if obs.tick % self.sample_every == 0 and len(obs.cav_index):

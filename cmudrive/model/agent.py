@@ -4,9 +4,10 @@ Per tick, for the ``n`` active CAVs:
 
 1. each CAV's row, as the dataset has it (:class:`cmudrive.model.row.RowBuilder`, the row contract the
    collector stores rows with): the front camera after the dataset's JPEG round trip, the merged
-   occupancy drawn with the dataset's palette, its speed, the next two sparse route target points in its
-   frame (progress along the leaderboard-style sparse plan that every agent gets, no privileged map) and
-   the other CAVs' poses;
+   occupancy drawn with the dataset's palette, its speed, how long it has stood (counted every tick),
+   the next two sparse route target points in its frame (progress along the leaderboard-style sparse plan
+   that every agent gets, no privileged map) and the other CAVs' poses; the model's configuration says
+   which of them its prompt states;
 2. one :meth:`~cmudrive.model.V2VVLA.predict` for all of them: the waypoints from one pass over
    prompt + queries every tick, and language (greedy decoding on the same KV cache) every
    ``language_every`` ticks (default 5: the dataset's 4 Hz, the rate its commentary labels change at;

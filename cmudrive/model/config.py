@@ -107,6 +107,10 @@ class ModelConfig:
     # the prompt states the CAV's speed (SimLingo); False: the model sees no speed and must judge from its
     # images whether to go (a speed-fed model copies its speed: "standing stays standing", docs/model.md)
     speed_in_prompt: bool = True
+    # the prompt states how long the CAV has stood ("Stopped for 2.5 s.", nothing while it moves; the row's
+    # ``standing``, cmudrive.model.row): what a model without its speed needs to leave a stop sign or
+    # know that it stands, without a speed to copy while it drives (docs/model.md, "Go/stop")
+    standing_in_prompt: bool = False
     max_other_cavs: int = 8  # the nearest ones are listed in the prompt
     # the other CAVs in the prompt as "<id><CAV_POINT>", one embedding per CAV from an MLP of its pose
     # (x, y [m] / target_point_scale, cos yaw, sin yaw) like the target points (about 3 tokens a CAV), instead

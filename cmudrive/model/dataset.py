@@ -21,7 +21,7 @@ from torch.utils.data import Dataset, Sampler
 
 from cmudrive.agents.control import expert_stops
 from cmudrive.model.augment import YawAugment, rotate_sample
-from cmudrive.model.row import TRAIN_COLUMNS
+from cmudrive.model.row import STANDING_SPEED, TRAIN_COLUMNS, standing_seconds
 
 GRID = "merged_occupancy"  # the stored grid the augmentation re-draws a rotated row's BEV from
 
@@ -43,9 +43,7 @@ class SplitSettings(Protocol):
 
 def load_split(config: SplitSettings) -> tuple[Any, Any, list[str]]:
     """(train, validation, validation route ids): the shards of ``config.data`` split by route."""
-    from cmudrive.data.shards import load_shards
-
-    ds = load_shards(config.data, TRAIN_COLUMNS)  # datasets' parquet loader over DIR/<route>.parquet
+    ds = load_rows(config.data)
     route_of = np.asarray(ds["route_id"])
     val_routes = split_routes(sorted(set(route_of.tolist())), config.val_fraction, config.seed)
     is_val = np.isin(route_of, val_routes)
@@ -55,7 +53,19 @@ def load_split(config: SplitSettings) -> tuple[Any, Any, list[str]]:
     return ds.select(train_rows), ds.select(np.flatnonzero(is_val)), val_routes
 
 
-STANDING_SPEED = 0.1  # [m/s]
+def load_rows(data: str, extra: Sequence[str] = ()) -> Any:
+    """The training columns (and ``extra`` ones) of every row of the shards in ``data``, and the derived
+    input ``standing`` (:func:`cmudrive.model.row.standing_seconds`: from the whole sequence of each CAV's
+    rows, so before any selection)."""
+    from cmudrive.data.shards import load_shards
+
+    ds = load_shards(data, (*TRAIN_COLUMNS, *extra))  # datasets' parquet loader over DIR/<route>.parquet
+    table = ds.data.table
+    column = {name: table.column(name).to_numpy() for name in ("route_id", "cav", "time", "speed")}
+    standing = standing_seconds(column["route_id"], column["cav"], column["time"], column["speed"])
+    return ds.add_column("standing", standing)
+
+
 STANDING_STAYS = 0.5  # [m] the last speed waypoint (2.5 s ahead) within this of the CAV
 
 

@@ -12,9 +12,11 @@ Token layout of one row (left-padded, so that every row ends at the same positio
 append its waypoint queries after it)::
 
     <pad>... <img> <IMG_CONTEXT>*(camera tokens) </img> [<img> <IMG_CONTEXT>*(BEV tokens) </img>] \\n
-    [Current speed: 4.2 m/s.] Target waypoint: <TARGET_POINT><TARGET_POINT>. [Other CAVs: ...] {task}
+    [Current speed: 4.2 m/s.] [Stopped for 2.5 s.] Target waypoint: <TARGET_POINT><TARGET_POINT>.
+    [Other CAVs: ...] {task}
 
-(the speed is left out by a configuration with ``speed_in_prompt=False``, and from a training row whose
+(the standing time only with ``standing_in_prompt`` and while the CAV stands: :func:`standing_text`; the
+speed is left out by a configuration with ``speed_in_prompt=False``, and from a training row whose
 ``speed`` is ``None``: speed dropout; with ``cav_tokens`` the other CAVs read "Other CAVs: 3<CAV_POINT>
 10<CAV_POINT>.", each ``<CAV_POINT>`` replaced by an embedding of that CAV's pose) and, for training,
 the answer apart (right-padded): the commentary,
@@ -233,6 +235,8 @@ class VLAProcessor:
         ctx = IMG_CONTEXT * self.tokens_per_image
         images = IMG_START + ctx * self.config.camera_tiles + IMG_END
         text = f"Target waypoint: {TARGET_POINT}{TARGET_POINT}."
+        if self.config.standing_in_prompt:
+            text = standing_text(row["standing"]) + text
         if self.config.speed_in_prompt and row["speed"] is not None:  # None: dropped in training
             text = f"Current speed: {float(row['speed']):.1f} m/s. {text}"
         if self.config.cooperative:
@@ -320,6 +324,20 @@ class VLAProcessor:
             if self.config.speed_query:
                 batch.target_speed, batch.stop = speed_labels(rows)
         return batch
+
+
+STANDING_STEP = 0.5  # [s] the prompt's standing time is rounded down to this
+STANDING_CAP = 30.0  # [s] and capped here: a longer stand reads as this one
+
+
+def standing_text(standing: float) -> str:
+    """The prompt's standing clause for a row's ``standing`` [s]: "" while the CAV moves (negative),
+    else "Stopped for 2.5 s. " (rounded down to ``STANDING_STEP``, at most ``STANDING_CAP``): the
+    collection's 0.25 s rows and the closed loop's 0.05 s ticks read the same."""
+    if standing < 0:
+        return ""
+    shown = min(math.floor(float(standing) / STANDING_STEP) * STANDING_STEP, STANDING_CAP)
+    return f"Stopped for {shown:.1f} s. "
 
 
 def speed_labels(rows: Sequence[dict[str, Any]]) -> tuple[torch.Tensor, torch.Tensor]:

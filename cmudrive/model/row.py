@@ -12,6 +12,10 @@ stored columns :data:`TRAIN_COLUMNS`. A row of one CAV at one tick:
 - ``merged_bev``: the merged occupancy (the own one with ``bev="own"``) as the occupancy image, one palette
   (:data:`cmudrive.sensors.occupancy.PALETTE`; stored as a palette PNG, lossless);
 - ``speed`` [m/s] and ``target_points`` (2, 2) [m, ego frame], float32 as stored;
+- ``standing`` [s]: how long the CAV has stood (below ``STANDING_SPEED``), -1.0 while it moves. Not a
+  stored column: the closed loop counts it every tick (:class:`StandingClock`), training derives it from
+  the stored rows' ``route_id``, ``cav``, ``time`` and ``speed`` (:func:`standing_seconds`), at the
+  collection's 4 Hz: the derived value lags the counted one by less than a sample interval (0.25 s);
 - ``other_cavs``: ``[cav, x, y, yaw]`` of every other active CAV in the ego frame (float32 values, as
   stored), CAV index order.
 
@@ -36,6 +40,8 @@ from cmudrive.sensors.occupancy import OccupancyConfig, pack_occupancy, packed_t
 
 TARGET_MIN_AHEAD = 7.5  # [m] a target point closer than this along the plan counts as reached (SimLingo's)
 TARGET_SEARCH = 3  # [segments] of the sparse plan searched ahead of the last one for the CAV's progress
+STANDING_SPEED = 0.1  # [m/s] below this a CAV stands (the go/stop situations, the standing clock)
+MOVING = -1.0  # the ``standing`` value of a CAV that moves
 
 INPUT_COLUMNS = ("camera", "merged_bev", "speed", "target_points", "other_cavs")  # what the model reads
 # targets; desired_speed is the speed query's target, target_speed (with the speed) its stop label
@@ -48,9 +54,10 @@ LABEL_COLUMNS = (
     "communication",
     "partner_label",
 )
-# what training loads: route_id for the split, the grid the camera-rotation augmentation re-draws the
-# merged BEV from (cmudrive.model.augment), and the expert's reason for bucketed sampling
-TRAIN_COLUMNS = ("route_id", *INPUT_COLUMNS, "merged_occupancy", *LABEL_COLUMNS, "reason")
+# what training loads: route_id for the split, cav and time with the speed for the standing time, the grid
+# the camera-rotation augmentation re-draws the merged BEV from (cmudrive.model.augment), and the expert's
+# reason for bucketed sampling
+TRAIN_COLUMNS = ("route_id", "cav", "time", *INPUT_COLUMNS, "merged_occupancy", *LABEL_COLUMNS, "reason")
 assert set(TRAIN_COLUMNS) <= set(COLUMNS)
 
 
@@ -98,6 +105,39 @@ class TargetPoints:
         return np.stack([self.points[rows, first], self.points[rows, second]], axis=1)
 
 
+class StandingClock:
+    """How long each CAV of a route has stood: seconds since the first tick of its current standstill
+    (speed below ``STANDING_SPEED``), ``MOVING`` while it moves. Call :meth:`update` once per tick."""
+
+    def __init__(self, num_cavs: int) -> None:
+        self.since = np.full(num_cavs, np.nan)  # [s] simulation time the standstill began; NaN: moving
+
+    def update(self, cavs: np.ndarray, time: float, speed: np.ndarray) -> np.ndarray:
+        """(n,) float32 [s] the standing time of CAVs ``cavs`` at ``time`` with speeds ``speed``."""
+        stands = np.asarray(speed) < STANDING_SPEED
+        began = np.where(np.isnan(self.since[cavs]), time, self.since[cavs])
+        self.since[cavs] = np.where(stands, began, np.nan)
+        return np.where(stands, time - began, MOVING).astype(np.float32)
+
+
+def standing_seconds(route: np.ndarray, cav: np.ndarray, time: np.ndarray, speed: np.ndarray) -> np.ndarray:
+    """(N,) float32 [s] the ``standing`` input of N stored rows (any order): time since the CAV's first row
+    of its current standstill, ``MOVING`` where it moves (what :class:`StandingClock` counts every tick, at
+    the rows' sampling rate)."""
+    n = len(speed)
+    _, route_code = np.unique(np.asarray(route), return_inverse=True)
+    time = np.asarray(time, np.float64)
+    order = np.lexsort((time, np.asarray(cav), route_code))
+    stands = np.asarray(speed)[order] < STANDING_SPEED
+    group = route_code[order] * (int(np.max(cav, initial=0)) + 1) + np.asarray(cav)[order]
+    start = np.ones(n, bool)
+    start[1:] = (group[1:] != group[:-1]) | ~stands[:-1]  # a new CAV, or the row after a moving one
+    first = np.maximum.accumulate(np.where(start, np.arange(n), 0))
+    out = np.empty(n, np.float32)
+    out[order] = np.where(stands, time[order] - time[order][first], MOVING)
+    return out
+
+
 def other_cavs(relative: np.ndarray) -> list[list[list[float]]]:
     """(n, K, 3) poses of every CAV in each active CAV's frame (``Observations.other_cavs``, NaN for itself
     and CAVs not driving) -> per CAV the ``other_cavs`` column: ``[cav, x, y, yaw]`` lists, float32 values."""
@@ -125,6 +165,7 @@ class RowInputs:
     camera: np.ndarray  # (n, H, W, 3) uint8, the raw render
     bev: np.ndarray | None  # (n, H, W) uint8 packed occupancy the BEV image shows; None: no image
     speed: np.ndarray  # (n,) float32 [m/s]
+    standing: np.ndarray  # (n,) float32 [s] since the CAV stopped, MOVING (-1) while it moves
     target_points: np.ndarray  # (n, 2, 2) float32 [m], ego frame
     other_cavs: list[list[list[float]]]  # per CAV: [cav, x, y, yaw] of the others (:func:`other_cavs`)
 
@@ -137,26 +178,39 @@ class RowBuilder:
 
     def __init__(self, plans: tuple[CavPlan, ...], occupancy: OccupancyConfig | None = None) -> None:
         self.targets = TargetPoints(plans)
+        self.clock = StandingClock(len(plans))
         self.occupancy = occupancy or OccupancyConfig()
         self._tick: int | None = None
         self._cavs = np.zeros(0, np.int64)
         self._target_points = np.zeros((0, 2, 2), np.float32)
+        self._standing = np.zeros(0, np.float32)
 
-    def target_points(self, obs: Observations) -> np.ndarray:
-        """(n, 2, 2) float32 [m] the next two target points of the active CAVs in their frames. Advances
-        their progress: call it every tick (the closed loop builds rows every tick; the collector, which
-        samples every fifth, calls it on the others too); a second call at the same tick repeats the
-        first's answer."""
+    def advance(self, obs: Observations) -> None:
+        """Move the active CAVs' progress along their plans and their standing clocks to this tick: call it
+        every tick (the closed loop builds rows every tick; the collector, which samples every fifth, calls
+        it on the others too); a second call at the same tick changes nothing."""
         cavs = np.asarray(obs.cav_index, np.int64)
         if obs.tick != self._tick:
             points = self.targets.next_two(cavs, np.stack([obs.x, obs.y], axis=1))
             self._target_points = to_ego(points, obs.x[:, None], obs.y[:, None], obs.yaw[:, None]).astype(
                 np.float32
             )
+            self._standing = self.clock.update(cavs, obs.time, obs.speed)
             self._tick, self._cavs = obs.tick, cavs
         elif not np.array_equal(cavs, self._cavs):
-            raise ValueError(f"tick {obs.tick}: target points asked twice, for other CAVs the second time")
+            raise ValueError(f"tick {obs.tick}: rows asked twice, for other CAVs the second time")
+
+    def target_points(self, obs: Observations) -> np.ndarray:
+        """(n, 2, 2) float32 [m] the next two target points of the active CAVs in their frames
+        (:meth:`advance` first)."""
+        self.advance(obs)
         return self._target_points
+
+    def standing(self, obs: Observations) -> np.ndarray:
+        """(n,) float32 [s] how long each active CAV has stood, ``MOVING`` (-1) where it moves
+        (:meth:`advance` first)."""
+        self.advance(obs)
+        return self._standing
 
     def inputs(self, obs: Observations, bev_grid: np.ndarray | None) -> RowInputs:
         """The rows of ``obs`` (camera and other CAVs' poses needed), the BEV image from ``bev_grid``
@@ -168,6 +222,7 @@ class RowBuilder:
             camera=obs.camera,
             bev=None if bev_grid is None else pack_occupancy(bev_grid),
             speed=np.asarray(obs.speed, np.float32),
+            standing=self.standing(obs),
             target_points=self.target_points(obs),
             other_cavs=other_cavs(obs.other_cavs),
         )
@@ -186,9 +241,10 @@ class RowBuilder:
         }
 
     def model_rows(self, inputs: RowInputs, jpeg: bool = True) -> list[dict[str, Any]]:
-        """The rows as training reads them back from the dataset (the columns of :meth:`stored`, decoded):
-        the camera after the JPEG round trip (``jpeg=False``: the raw render, which training never saw),
-        the BEV drawn with the stored image's palette (PNG is lossless: the same pixels)."""
+        """The rows as training reads them back from the dataset (the columns of :meth:`stored`, decoded,
+        and the derived ``standing``): the camera after the JPEG round trip (``jpeg=False``: the raw render,
+        which training never saw), the BEV drawn with the stored image's palette (PNG is lossless: the
+        same pixels)."""
         bev = None if inputs.bev is None else packed_to_rgb(inputs.bev, self.occupancy)
         out = []
         for a in range(len(inputs)):
@@ -196,6 +252,7 @@ class RowBuilder:
             row: dict[str, Any] = {
                 "camera": jpeg_round_trip(camera) if jpeg else camera,
                 "speed": float(inputs.speed[a]),
+                "standing": float(inputs.standing[a]),
                 "target_points": inputs.target_points[a],
                 "other_cavs": inputs.other_cavs[a],
             }

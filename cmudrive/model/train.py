@@ -81,6 +81,10 @@ class TrainConfig:
     communication_repeat: int = 1
     speed_input: bool = True  # the prompt states the CAV's speed (SimLingo); False: no speed anywhere
     speed_dropout: float = 0.0  # [-] share of training rows whose prompt leaves the speed out
+    standing_input: bool = False  # the prompt states how long the CAV has stood (ModelConfig)
+    # a saved model folder (save_pretrained) whose weights start the run instead of fresh ones; its sizes
+    # must be this configuration's (prompt settings may differ: fine-tuning with a new input)
+    init_from: str | None = None
     # bucketed sampling (SimLingo's spirit): each epoch draws as many rows as there are training rows,
     # bucket b (starts, stands, stops, turns, follows, slows, cruises: sampling_buckets) getting a share
     # proportional to count_b ** bucket_power: 1.0 samples as collected (a plain permutation), 0.0 gives
@@ -129,6 +133,8 @@ class TrainConfig:
         extra: dict[str, Any] = {"pretrained_path": self.pretrained_path} if self.pretrained_path else {}
         if not self.speed_input:
             extra["speed_in_prompt"] = False
+        if self.standing_input:
+            extra["standing_in_prompt"] = True
         return get_config(self.model, cooperative=self.cooperative, **extra)
 
     def to_dict(self) -> dict[str, Any]:
@@ -166,6 +172,21 @@ def latest_checkpoint(out: Path) -> Path | None:
     return done[-1] if done else None
 
 
+def init_weights(model: V2VVLA, source: Path) -> None:
+    """Load the weights of the saved model folder ``source`` into ``model`` (every tensor, same shapes)."""
+    try:
+        saved = V2VVLA.from_pretrained(source)
+    except (OSError, ValueError, KeyError) as exc:
+        raise ValueError(f"--init-from {source}: not a V2VVLA.save_pretrained folder ({exc})") from exc
+    if saved.config.cooperative != model.config.cooperative:
+        kind = "cooperative" if saved.config.cooperative else "baseline"
+        raise ValueError(f"--init-from {source}: a {kind} model, this run trains the other kind")
+    try:
+        model.load_state_dict(saved.state_dict())
+    except RuntimeError as exc:
+        raise ValueError(f"--init-from {source}: its weights do not fit this configuration: {exc}") from exc
+
+
 def train(config: TrainConfig, resume: bool = False, progress: bool = True) -> dict[str, float]:
     """Run (or continue) a training run; returns the last validation metrics (empty without validation)."""
     return Trainer(config, resume, progress).run()
@@ -187,6 +208,8 @@ class Trainer:
         self.accelerator = acc = Accelerator(mixed_precision=mixed_precision(config.mixed_precision))
         set_seed(config.seed)
         model = V2VVLA.from_config(config.model_config())
+        if config.init_from is not None:
+            init_weights(model, Path(config.init_from))
         if config.compile:
             model.backbone.model.language_model.compile(dynamic=True)
         self.train_set = DrivingDataset(train_rows, config.augment, config.seed, config.speed_dropout)
