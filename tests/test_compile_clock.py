@@ -176,3 +176,32 @@ with event.install_listener("numba:compile", Count()):
     evaluate_route(spec, load_agent_class("expert"), EvalConfig(tick_cap=int(sys.argv[2])))
 print(json.dumps(compiled))
 """
+
+
+def test_a_worker_runs_numba_kernels_on_its_share_and_still_compiles() -> None:
+    """Numba reads NUMBA_NUM_THREADS when imported, before a worker sets its share; the worker applies it
+    (a parallel kernel then runs on one thread) and a kernel compiled afterwards does not stumble on the
+    changed variable (numba re-reads it at every compile: a cold cache crashed every route once)."""
+    script = """
+import os
+os.environ.pop("NUMBA_NUM_THREADS", None)
+import numba, numpy as np
+from cmudrive.bench.runner import limit_numba_threads
+os.environ["NUMBA_NUM_THREADS"] = "1"
+limit_numba_threads()
+@numba.njit(parallel=True)
+def total(a):
+    s = 0.0
+    for i in numba.prange(a.shape[0]):
+        s += a[i]
+    return s
+@numba.njit
+def inside():
+    return numba.get_num_threads()
+print(total(np.ones(100)), inside(), numba.config.NUMBA_NUM_THREADS)
+"""
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_NUM_THREADS"}
+    cmd = [sys.executable, "-c", script]
+    done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.split() == ["100.0", "1", "1"]

@@ -338,13 +338,14 @@ class _Running:
 
 
 def limit_numba_threads() -> None:
-    """Numba read ``NUMBA_NUM_THREADS`` when this module imported it, before a worker could set it: apply
-    the value in the environment now (its parallel kernels run on the calling thread's count)."""
+    """Numba read ``NUMBA_NUM_THREADS`` when this module imported it, before a worker could set it: read the
+    environment again (numba re-reads it whenever it compiles, and refuses a value other than the one it
+    read when its threads started) and run parallel kernels on that many threads (its pool, sized at
+    import, keeps the others idle)."""
     import numba
 
-    most = int(numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]  # set at import, from the env
-    wanted = int(os.environ.get("NUMBA_NUM_THREADS", most))
-    numba.set_num_threads(max(1, min(wanted, most)))
+    numba.config.reload_config()
+    numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]  # read from the env
 
 
 def _worker(task: RouteTask, messages: Any, beat: Any, threads: int = 1, parent: int | None = None) -> None:
