@@ -175,6 +175,8 @@ def test_standing_time_is_stated_while_the_cav_stands_rounded_down_to_half_secon
     assert "Stopped for 2.5 s. " in clocked.prompt({**row, "standing": 2.5})  # read alike
     assert "Stopped for 30.0 s. " in clocked.prompt({**row, "standing": 95.0})  # capped
     assert "Stopped" not in VLAProcessor.from_config(get_config("tiny")).prompt({**row, "standing": 3.0})
+    with pytest.raises(ValueError, match="needs 'standing'"):
+        clocked.prompt({k: v for k, v in row.items() if k != "standing"})
 
 
 def test_baseline_takes_no_bev_no_other_cavs_no_communication(baseline: VLAProcessor) -> None:

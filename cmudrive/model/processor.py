@@ -236,6 +236,11 @@ class VLAProcessor:
         images = IMG_START + ctx * self.config.camera_tiles + IMG_END
         text = f"Target waypoint: {TARGET_POINT}{TARGET_POINT}."
         if self.config.standing_in_prompt:
+            if row.get("standing") is None:
+                raise ValueError(
+                    "this model's prompt states how long the CAV has stood: the row needs 'standing' [s], "
+                    "-1 while it moves (cmudrive.model.row.RowBuilder or dataset.load_rows give it)"
+                )
             text = standing_text(row["standing"]) + text
         if self.config.speed_in_prompt and row["speed"] is not None:  # None: dropped in training
             text = f"Current speed: {float(row['speed']):.1f} m/s. {text}"
