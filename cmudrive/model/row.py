@@ -34,13 +34,14 @@ import numpy as np
 from PIL import Image
 
 from cmudrive.agents.base import CavPlan, Observations
+from cmudrive.agents.control import STOPPED_SPEED
 from cmudrive.data.schema import CAMERA_FORMAT, COLUMNS, encode_bev, encode_image
 from cmudrive.maps.coords import to_ego
 from cmudrive.sensors.occupancy import OccupancyConfig, pack_occupancy, packed_to_rgb
 
 TARGET_MIN_AHEAD = 7.5  # [m] a target point closer than this along the plan counts as reached (SimLingo's)
 TARGET_SEARCH = 3  # [segments] of the sparse plan searched ahead of the last one for the CAV's progress
-STANDING_SPEED = 0.1  # [m/s] below this a CAV stands (the go/stop situations, the standing clock)
+STANDING_SPEED = STOPPED_SPEED  # [m/s] below this a CAV stands: the controller's, go/stop's and the clock's
 MOVING = -1.0  # the ``standing`` value of a CAV that moves
 
 INPUT_COLUMNS = ("camera", "merged_bev", "speed", "target_points", "other_cavs")  # what the model reads
