@@ -319,6 +319,17 @@ def test_a_run_writes_logs_checkpoints_and_a_loadable_model(data: Path, tmp_path
         ValueError, match=r"(?s)different configuration:\n.*  max_steps: 4 \(then\) -> 5 \(now\)"
     ):
         train(config(data, out, max_steps=5), resume=True, progress=False)
+    # a run begun before a setting existed ran on its default: resuming it with that default is no change
+    saved = out / "train_config.json"
+    newer = ("init_from", "standing_input")
+    older = {k: v for k, v in json.loads(saved.read_text()).items() if k not in newer}
+    saved.write_text(json.dumps(older))
+    with pytest.raises(ValueError, match=r"(?s)different configuration:\n  standing_input: false \(then\)"):
+        train(
+            config(data, out, max_steps=4, keep_checkpoints=1, standing_input=True),
+            resume=True,
+            progress=False,
+        )
 
 
 def test_cli_trains_the_baseline(data: Path, tmp_path: Path) -> None:

@@ -344,7 +344,12 @@ def _load_checkpoint(accelerator: Any, path: Path) -> TrainState:
 def _check_out(config: TrainConfig, out: Path, resume: bool) -> None:
     saved = out / "train_config.json"
     if resume and saved.is_file():
-        diff = settings_diff(json.loads(saved.read_text()), config.to_dict(), ignore=RESUME_MAY_CHANGE)
+        then = json.loads(saved.read_text())
+        # a setting added since the run began: the run used its default
+        for f in dataclasses.fields(TrainConfig):
+            if f.name not in then and f.default is not dataclasses.MISSING:
+                then[f.name] = f.default
+        diff = settings_diff(then, config.to_dict(), ignore=RESUME_MAY_CHANGE)
         if diff:
             raise ValueError(f"{out}: --resume with a different configuration:\n{describe_diff(diff)}")
     elif not resume and (out / CHECKPOINTS).exists():
