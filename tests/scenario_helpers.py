@@ -94,5 +94,19 @@ class StopsAt(PidAgent):
         return Controls(np.zeros(n), np.zeros(n), np.ones(n))
 
 
+class StopsSome(PidAgent):
+    """Follows its route like the PID agent; each CAV in ``STOP_AT`` brakes to a standstill from its time
+    [s] on, the others drive on."""
+
+    STOP_AT: ClassVar[dict[int, float]] = {}
+    observations: ClassVar[frozenset[Observation]] = PidAgent.observations
+
+    def run_step(self, obs: Observations) -> Controls:
+        c = super().run_step(obs)
+        stop = np.array([obs.time >= self.STOP_AT.get(int(i), np.inf) for i in obs.cav_index], bool)
+        steer, throttle = np.where(stop, 0.0, c.steer), np.where(stop, 0.0, c.throttle)
+        return Controls(steer, throttle, np.where(stop, 1.0, c.brake))
+
+
 def interurban() -> RoadMap:
     return load_map("interurban")

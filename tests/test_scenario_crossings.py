@@ -7,13 +7,24 @@ arrival at the crossing point drops below the reference's t, then crosses CAV 0'
 from __future__ import annotations
 
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 import pytest
 
-from cmudrive.bench import RouteSpec
+from cmudrive.bench import EvalConfig, RouteSpec
 from cmudrive.maps import RoadMap, load_map
-from tests.scenario_helpers import cav_track, path_cav, run, scenario, track, trigger
+from tests.scenario_helpers import (
+    EMPTY,
+    StopsSome,
+    cav_track,
+    lane_cav,
+    path_cav,
+    run,
+    scenario,
+    track,
+    trigger,
+)
 
 A, STRAIGHT, RIGHT = "J0_0-J0_1_2", "J0_1-J0_2_2", "J0_1-J1_1_1"  # downtown: approach, straight / right exit
 W1, W3 = ["walker"], ["walker0", "walker1", "walker2"]
@@ -127,3 +138,34 @@ def test_occluder_hides_the_walker_until_activation(tmp_path: Path) -> None:
     s_b, _ = m.index.project(blocker[:1, :2], lane)
     s_w, _ = m.index.project(walker[appear : appear + 1, :2], lane)
     assert s_b[0] == pytest.approx(70.0, abs=0.1) and s_w[0] - s_b[0] == pytest.approx(1.0, abs=0.1)
+
+
+class Cav0StopsAfterActivation(StopsSome):
+    # [s]: CAV 0 has passed the trigger (s = 28 m) and stands ~30 m short of X
+    STOP_AT: ClassVar[dict[int, float]] = {0: 4.0}
+
+
+def test_only_cav_0_releases_the_crosser(tmp_path: Path) -> None:
+    """DynamicObjectCrossing (downtown, distance 40 m): CAV 0 activates the scenario and stands ~30 m short
+    of the crossing point X; CAV 1 drives the oncoming lane right past X (3.3 m from it, inside the 6 m
+    distance trigger). The walker, the scenario's adversary for CAV 0 alone, does not start."""
+    m = load_map("downtown")
+    a = "J0_0-J0_1_2"
+    oncoming = str(m.lane_ids[m.lane_opposite[m.lane(a)]])
+    cav0 = route_through(m, "DynamicObjectCrossing", a, "J0_1-J0_2_2", 30.0, distance="40").cavs[0]
+    sc = scenario("DynamicObjectCrossing", trigger(m, a, 30.0), distance="40")
+    cav1 = lane_cav(m, 1, oncoming, 20.0, 130.0)  # X is at s = 70 m of lane a, ~68 m of the oncoming one
+    spec = RouteSpec("cav1_passes_x", "downtown", "ClearNoon", 0, (cav0, cav1), (sc,))
+    result, log = run(spec, tmp_path, Cav0StopsAfterActivation, EvalConfig(background=EMPTY, tick_cap=500))
+    walker, blocker = track(log, "S1:walker"), track(log, "S1:blocker")
+    present = np.flatnonzero(~np.isnan(walker[:, 0]))
+    assert len(present) > 0  # the scenario activated on CAV 0
+    assert np.all(walker[present, 3] == 0.0)  # and the walker never moved
+    x_s = 70.0
+    s0, _ = m.index.project(cav_track(log, 0)[-1:, :2], np.array([m.lane(a)]))
+    assert 28.0 < s0[0] < x_s - 6.0 and cav_track(log, 0)[-1, 3] < 0.1  # CAV 0 stands short of X
+    # CAV 1 came within 6 m of X (the old any-CAV trigger fired on it) and drove on past it
+    x_xy = m.index.frenet_to_xy(np.array([m.lane(a)]), np.array([x_s]))[0]
+    gap1 = np.linalg.norm(cav_track(log, 1)[:, :2] - x_xy, axis=1)
+    assert np.nanmin(gap1) < 6.0 and result.cavs[1].route_completion > 90.0
+    assert not np.isnan(blocker[-1, 0])  # the occluder is still there: the crossing never happened

@@ -7,6 +7,7 @@ the passing lane does not), and are cleared once CAV 0 is 50 m past the last one
 from __future__ import annotations
 
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 import pytest
@@ -16,7 +17,7 @@ from cmudrive.bench.records import RouteResult
 from cmudrive.bench.routes import ScenarioSpec
 from cmudrive.maps import RoadMap, load_map
 from cmudrive.sim.background import BackgroundConfig
-from tests.scenario_helpers import cav_track, frenet, lane_cav, run, scenario, track, trigger
+from tests.scenario_helpers import StopsSome, cav_track, frenet, lane_cav, run, scenario, track, trigger
 
 T_S = 40.0  # [m] trigger point's arc length on CAV 0's lane
 SCENES = {"interurban": ("R1a-R2a_0", "R1a-R2a_1"), "Town03": ("76_3", "76_4")}
@@ -263,3 +264,28 @@ def test_invading_cars_cross_the_centre_line(town: str, lane: str, tmp_path: Pat
         assert np.median(d) == pytest.approx(0.25 + 0.5 * w - 0.7, abs=0.05)
         assert np.median(d) + 0.5 * 1.85 > 0.5 * w  # the box crosses the centre line
         assert tr[rows[1:-1], 3] == pytest.approx(m.lane_speed[i])
+
+
+class Cav1Stops(StopsSome):
+    STOP_AT: ClassVar[dict[int, float]] = {1: 0.0}  # [s]: CAV 1 never moves
+
+
+def test_invading_turn_ends_with_cav_0_whatever_the_others_do(tmp_path: Path) -> None:
+    """InvadingTurn (downtown, distance 40 m): CAV 1 stands behind CAV 0 on the same lane, its route
+    through the trigger too, and never reaches the end (past S within 50 m). The scenario's ego is CAV 0:
+    the moment CAV 0 is past S, the cones and invading cars are gone and no scenario timeout is charged."""
+    m = load_map("downtown")
+    lane = "J0_0-J0_1_2"
+    sc = ScenarioSpec("S1", "InvadingTurn", trigger(m, lane, 25.0), {"distance": "40", "offset": "0.3"})
+    cavs = (lane_cav(m, 0, lane, 20.0, 135.0), lane_cav(m, 1, lane, 5.0, 135.0))
+    spec = RouteSpec("invading_cav1_stands", "downtown", "ClearNoon", 0, cavs, (sc,))
+    result, log = run(spec, tmp_path, Cav1Stops, EvalConfig(background=BackgroundConfig(0, 0), tick_cap=800))
+    ids = sorted({a for a in log.arrays["actor_id"].tolist() if a.startswith("S1:")})
+    assert any(a.startswith("S1:inv") for a in ids) and any(a.startswith("S1:cone") for a in ids)
+    last = max(int(np.flatnonzero(~np.isnan(track(log, a)[:, 0]))[-1]) for a in ids)
+    # S is abreast next(distance + 30) = s 95 m of CAV 0's lane: the actors go as CAV 0 gets past it
+    s_last, _ = frenet(m, lane, cav_track(log, 0)[last, :2])
+    assert 94.0 < s_last[0] < 100.0, s_last
+    assert last * 0.05 < 20.0 and log.num_ticks > last + 200  # long before the route's end (40 s)
+    assert cav_track(log, 1)[-1, 3] < 0.1  # CAV 1 stood all along
+    assert all(len(c.infractions["scenario_timeouts"]) == 0 for c in result.cavs)

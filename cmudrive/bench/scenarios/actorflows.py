@@ -8,26 +8,25 @@ with gaps U[``source_dist_interval``] m; all have the 240 s scenario timeout.
 
 * EnterActorFlow: one flow per same-direction lane of the source road, paired in order with the sink road's
   lanes (aligned on the given source and sink lanes); pre-filled; the junction the CAV enters cleared;
-  ends when the charged CAVs reached a sink.
+  ends when CAV 0 reached a sink.
 * HighwayExit: one pre-filled flow; its source lane removed from background traffic (not re-added, as
-  upstream); ends when the charged CAVs left the first junction past T.
-* MergerIntoSlowTraffic(V2): one pre-filled flow; the junction cleared; ends when the charged CAVs reached
-  the sink.
+  upstream); ends when CAV 0 left the first junction past T.
+* MergerIntoSlowTraffic(V2): one pre-filled flow; the junction cleared; ends when CAV 0 reached the sink.
 * InterurbanActorFlow: one flow, not pre-filled; background oncoming traffic off during the scenario; ends
-  when the charged CAVs left the first junction past T.
+  when CAV 0 left the first junction past T.
 
 "Reached a sink" is within 2 m of a sink point or past it (ahead along its lane, within a lane width of
-it): a CAV that drives beside the sink point passes it without touching its 2 m circle.
+it): a CAV that drives beside the sink point passes it without touching its 2 m circle. As in every type,
+the end follows CAV 0, the scenario's ego (``base.py``).
 """
 
 from __future__ import annotations
 
-import math
 from typing import ClassVar
 
 import numpy as np
 
-from cmudrive.bench.scenarios.base import RouteProgress, Scenario
+from cmudrive.bench.scenarios.base import EGO, RouteProgress, Scenario
 from cmudrive.bench.scenarios.flows import VehicleFlow
 from cmudrive.bench.scenarios.junctions import exit_distance
 from cmudrive.bench.scenarios.params import Param
@@ -85,11 +84,10 @@ class ActorFlowScenario(Scenario):
             except RouteError as exc:  # EnterActorFlow: a lane pair with no path is left out
                 if k == 0 or not self.all_lanes:
                     raise self.error(f"no lane path from start_actor_flow to end_actor_flow: {exc}") from None
-        self.goal = np.full(len(self.ctx.routes), math.inf)  # [m] along each charged CAV's route
-        for i, r in enumerate(self.ctx.routes):
-            k0 = int(np.argmin(np.linalg.norm(r.xy - self.trigger_xy, axis=1)))
-            self.goal[i] = exit_distance(r.xy, r.in_junction, r.distance, k0)
-        if not self.end_at_sink and not np.isfinite(self.goal[0]):
+        route = self.ctx.routes[EGO]
+        # [m] along CAV 0's route: where it has left the first junction past T
+        self.goal = exit_distance(route.xy, route.in_junction, route.distance, self.trigger_index)
+        if not self.end_at_sink and not np.isfinite(self.goal):
             raise self.error("no place for the scenario: CAV 0's route meets no junction after T")
 
     def plan(self) -> list[PlanItem]:
@@ -134,16 +132,15 @@ class ActorFlowScenario(Scenario):
         for flow in self.flows:
             flow.update(snap)
         if self.end_at_sink:
-            rel = progress.xy[:, None, :] - self.sinks[None]  # (n, k, 2)
-            along = rel[..., 0] * np.cos(self.sink_heading) + rel[..., 1] * np.sin(self.sink_heading)
-            across = -rel[..., 0] * np.sin(self.sink_heading) + rel[..., 1] * np.cos(self.sink_heading)
-            near = np.linalg.norm(rel, axis=2) < SINK_REACHED
+            rel = progress.xy[EGO] - self.sinks  # (k, 2)
+            along = rel[:, 0] * np.cos(self.sink_heading) + rel[:, 1] * np.sin(self.sink_heading)
+            across = -rel[:, 0] * np.sin(self.sink_heading) + rel[:, 1] * np.cos(self.sink_heading)
+            near = np.linalg.norm(rel, axis=1) < SINK_REACHED
             past = (along > 0.0) & (np.abs(across) < 3.5) & (along < 30.0)
-            self.passed |= progress.present & np.any(near | past, axis=1)
+            self.passed |= bool(progress.present[EGO]) and bool(np.any(near | past))
         else:
-            driven = np.array([r.distance[k] for r, k in zip(self.ctx.routes, progress.index, strict=True)])
-            self.passed |= driven >= self.goal
-        return bool(np.all(self.passed[self.running_charged()]))
+            self.passed |= self.ego_driven(progress) >= self.goal
+        return self.ego_passed()
 
     def on_end(self) -> None:
         for flow in self.flows:
@@ -194,7 +191,7 @@ class InterurbanAdvancedActorFlow(ActorFlowScenario):
     """#16: cross flow 1, then merge into flow 2 on the opposite carriageway of the same road. Flow 1 runs
     from ``start_actor_flow`` to ``end_actor_flow``; flow 2 from the oncoming lane beside flow 1's sink to
     the oncoming lane beside flow 1's source; neither is pre-filled; the junction is cleared and background
-    oncoming traffic paused; ends when the charged CAVs reached flow 2's sink."""
+    oncoming traffic paused; ends when CAV 0 reached flow 2's sink."""
 
     type_name = "InterurbanAdvancedActorFlow"
     params: ClassVar[tuple[Param, ...]] = (

@@ -5,13 +5,13 @@ The adversary is a SUMO ``ambulance`` (blue light) on the first entry lane with 
 approach named by ``direction`` (right / left / opposite, relative to CAV 0's approach to its first
 junction past T), up to 30 m upstream of the junction (the walk stops at the previous junction); it
 appears at activation and stands. P, the collision point, is where the straight extensions of CAV 0's
-and its approach lanes meet (the junction centre when they are parallel). Once some CAV's time to
+and its approach lanes meet (the junction centre when they are parallel). Once CAV 0's time to
 arrival at P drops below 2.2 s (or its distance below 12 m), the vehicle drives straight through at a
 constant 60 km/h to 10 m past its exit, ignoring lights, right of way *and* other vehicles (SUMO speed
 mode 0, as the reference's imposed velocity), for at most its path length / 16.7 m/s; then it is removed.
 OppositeVehicleRunningRedLight also freezes the junction's lights from activation to the end: CAV 0's
-approach green, every other signal red. The scenario ends once the vehicle is gone and the charged CAVs
-left the junction; no scenario timeout.
+approach green, every other signal red. The scenario ends once the vehicle is gone and CAV 0 left the
+junction; no scenario timeout.
 """
 
 from __future__ import annotations
@@ -21,9 +21,9 @@ from typing import ClassVar
 
 import numpy as np
 
-from cmudrive.bench.scenarios.base import RouteProgress, Scenario
+from cmudrive.bench.scenarios.base import EGO, RouteProgress, Scenario
 from cmudrive.bench.scenarios.behaviours import time_to_arrival
-from cmudrive.bench.scenarios.junctions import FORCED_GREEN, exit_distance
+from cmudrive.bench.scenarios.junctions import approach_lanes, exit_distance
 from cmudrive.bench.scenarios.params import Param
 from cmudrive.bench.scenarios.placement import LanePoint, point_xy, walk
 from cmudrive.bench.scenarios.plan import PlanItem, path, point
@@ -106,10 +106,8 @@ class OppositeVehicle(Scenario):
         self.ev_id = f"{self.spec.name}:ev"
         self.fired_at = math.nan
         self.gone = False
-        self.goal = np.full(len(self.ctx.routes), math.inf)
-        for i, r in enumerate(self.ctx.routes):
-            k0 = int(np.argmin(np.linalg.norm(r.xy - self.trigger_xy, axis=1)))
-            self.goal[i] = exit_distance(r.xy, r.in_junction, r.distance, k0)
+        r = self.ctx.routes[EGO]  # [m] along CAV 0's route: out of its junction
+        self.goal = exit_distance(r.xy, r.in_junction, r.distance, self.trigger_index)
 
     def plan(self) -> list[PlanItem]:
         start = point(EV_TYPE, self.path_xy[0], float(np.arctan2(*(self.path_xy[1] - self.path_xy[0])[::-1])))
@@ -140,7 +138,7 @@ class OppositeVehicle(Scenario):
         sumo.override(self.ev_id, ignore_lights=True, ignore_right_of_way=True, speed=0.0, lane_changes=False)
         libsumo.vehicle.setSpeedMode(self.ev_id, 0)  # ignores vehicles too: it will not brake for the CAV
         if self.red_light:
-            self.world.lights.force_lanes([self.ego_lane], "G", others="r")
+            self.world.lights.force_lanes(approach_lanes(self.map, self.ego_lane), "G", others="r")
 
     def on_update(self, snap: Snapshot, progress: RouteProgress) -> bool:
         import libsumo
@@ -159,11 +157,8 @@ class OppositeVehicle(Scenario):
             if at_sink or timed or self.ev_id not in sumo.actors:
                 sumo.remove(self.ev_id)
                 self.gone = True
-        if self.red_light and (self.gone or self.time - self.activated_at >= 2 * FORCED_GREEN):
-            self.world.lights.release()  # CAVs on the other approaches wait no longer (a no-op once released)
-        driven = np.array([r.distance[k] for r, k in zip(self.ctx.routes, progress.index, strict=True)])
-        self.passed |= driven >= self.goal
-        return self.gone and bool(np.all(self.passed[self.running_charged()]))
+        self.passed |= self.ego_driven(progress) >= self.goal
+        return self.gone and self.ego_passed()
 
     def on_end(self) -> None:
         self.world.sumo.remove(self.ev_id)

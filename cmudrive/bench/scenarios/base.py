@@ -7,16 +7,23 @@ Then, once per tick *before* the world ticks, :meth:`Scenario.step`:
 1. **instantiate** once CAV 0 is within ``instantiation_distance`` of the trigger along its route
    (the "present from instantiation" actors appear: :meth:`Scenario.on_instantiate`);
 2. **activate** once CAV 0's matched route point is within ``activation_distance`` (2 m) of the trigger
-   (:meth:`Scenario.on_activate`); the blocked test of every *charged* CAV is suspended while the
+   (:meth:`Scenario.on_activate`); the blocked test of every *affected* CAV is suspended while the
    scenario's timeout runs (the reference's ST240);
 3. **update** every tick (:meth:`Scenario.on_update` returns True when the scenario's own end holds);
-4. **end**, by its own condition or by the timeout: on timeout every charged CAV that is still running
-   and has not passed the scenario gets ``scenario_timeouts``; then :meth:`Scenario.on_end` cleans up
-   (the actors this scenario spawned are removed) and the blocked tests resume.
+4. **end**, by its own condition or by the timeout: on timeout CAV 0, if it is still running and has
+   not passed the scenario, gets ``scenario_timeouts``; then :meth:`Scenario.on_end` cleans up (the
+   actors this scenario spawned are removed) and the blocked tests resume.
 
-*Charged* CAVs are those whose route passes within ``charge_distance`` of the trigger point (CAV 0
-always): they are the ones the scenario's own criteria judge. Collisions are charged to every CAV by the
-route criteria, with no scenario involved.
+**CAV 0 is the scenario's ego**, as the one ego of Bench2Drive's scenarios: activation, the triggers of
+the behaviour (TTA and distance triggers, ``behaviours.py``), whom a cut-in or an emergency vehicle acts
+on, the end condition (:meth:`Scenario.ego_passed`) and the scenario-scoped criteria (scenario timeout,
+yield to the emergency vehicle) all follow CAV 0 alone. A CAV that is not CAV 0 never releases an
+adversary early and never holds the actors in the world after CAV 0 is done with them.
+
+*Affected* CAVs are those whose route passes within ``affected_distance`` of the trigger point (CAV 0
+always): they meet the same obstacle, so the scenario suspends their blocked test while it runs and lets
+them use the opposite lane where it lets CAV 0 (the TwoWays obstacles). Every CAV is scored by the usual
+route criteria: collisions with scenario actors included, with no scenario involved.
 """
 
 from __future__ import annotations
@@ -39,6 +46,7 @@ from cmudrive.sim.dynamics import Controls
 from cmudrive.sim.snapshot import Role, Snapshot
 from cmudrive.sim.world import World
 
+EGO = 0  # the scenario's ego: CAV 0, whose route holds the trigger point
 PROGRESS_WINDOW = 30  # [route points] searched ahead of a CAV's last matched point per tick
 JUNCTION_SEARCH = 150.0  # [m] along CAV 0's route past T where the junction of a junction type must lie
 
@@ -51,10 +59,10 @@ class ScenarioConfig:
     # [m] CAV 0's matched route point this close to T activates it (the route file's trigger tolerance)
     activation_distance: float = TRIGGER_TOLERANCE
     instantiation_distance: float = 500.0  # [m] along CAV 0's route before T: present actors appear
-    charge_distance: float = 2.0  # [m] a route this close to T makes its CAV a charged one
+    affected_distance: float = 2.0  # [m] a route this close to T makes its CAV an affected one
 
     def __post_init__(self) -> None:
-        for name in ("timeout", "activation_distance", "instantiation_distance", "charge_distance"):
+        for name in ("timeout", "activation_distance", "instantiation_distance", "affected_distance"):
             value = getattr(self, name)
             if not value > 0.0 or not math.isfinite(value):
                 raise ValueError(f"ScenarioConfig.{name} must be a positive number, got {value}")
@@ -128,11 +136,10 @@ class Scenario:
         self.activation_index = int(near[0])  # the first route point within the activation distance
         self.t_wp = LanePoint(int(route.lane[self.trigger_index]), float(route.s[self.trigger_index]))
         self.route_lanes = frozenset(int(x) for x in route.path)
-        self.charged = np.array(
-            [np.min(np.linalg.norm(r.xy - self.trigger_xy, axis=1)) < cfg.charge_distance for r in ctx.routes]
-        )
-        self.charged[0] = True
-        self.passed = np.zeros(len(ctx.routes), bool)  # per CAV: has met the scenario's end condition
+        gaps = [float(np.min(np.linalg.norm(r.xy - self.trigger_xy, axis=1))) for r in ctx.routes]
+        self.affected = np.array(gaps) < cfg.affected_distance
+        self.affected[EGO] = True
+        self.passed = False  # the ego (CAV 0) has met the scenario's end condition
         self.phase = Phase.PENDING
         self.activated_at = math.nan  # [s] world time of activation
         self.ended_by_timeout = False
@@ -262,9 +269,18 @@ class Scenario:
             self.actors.remove(actor_id)
             self.world.remove_layer_actor(actor_id)
 
-    def running_charged(self) -> np.ndarray:
-        """(n,) bool: charged CAVs whose evaluation is still running."""
-        return self.charged & ~self.criteria.finished()
+    def ego_running(self) -> bool:
+        """CAV 0's evaluation is still running (it has not finished, failed or been blocked)."""
+        return not bool(self.criteria.finished()[EGO])
+
+    def ego_passed(self) -> bool:
+        """The scenario's own end, as far as its ego goes: CAV 0 has met the type's end condition
+        (``passed``), or its evaluation ended first (upstream, the scenario ends with its ego's route)."""
+        return self.passed or not self.ego_running()
+
+    def ego_driven(self, progress: RouteProgress) -> float:
+        """[m] CAV 0's distance along its own route at its matched point."""
+        return float(self.ctx.routes[EGO].distance[progress.index[EGO]])
 
     # ------------------------------------------------------------------ the life cycle
     def step(self, snap: Snapshot, progress: RouteProgress) -> None:
@@ -308,11 +324,11 @@ class Scenario:
         message = (
             f"Scenario {self.spec.name} ({self.type_name}) timed out after {self.ctx.config.timeout:g} s"
         )
-        for i in np.flatnonzero(self.running_charged() & ~self.passed).tolist():
-            self.criteria.record_scenario_timeout(i, int(snap.step), message)
+        if self.ego_running() and not self.passed:
+            self.criteria.record_scenario_timeout(EGO, int(snap.step), message)
 
     def _suspend_blocked(self, suspended: bool) -> None:
         if not self.uses_timeout:
             return
-        for i in np.flatnonzero(self.charged).tolist():
+        for i in np.flatnonzero(self.affected).tolist():
             self.criteria.suspend_blocked(i, suspended)

@@ -5,15 +5,15 @@
 * :class:`PathMotion`: drive a layer actor along a polyline at a speed ("drive this path");
 * :func:`lane_path`: the polyline along the lane graph, shifted sideways, that such a path follows.
 
-Triggers look at every CAV in the world (``RouteProgress.present``): a scenario activates on CAV 0, but
-any CAV that drives into its area meets the same adversary.
+Triggers look at the scenario's ego, CAV 0, alone (as upstream's look at the one ego): another CAV that
+drives into the area first meets the actors where they stand but does not release them.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from cmudrive.bench.scenarios.base import RouteProgress
+from cmudrive.bench.scenarios.base import EGO, RouteProgress
 from cmudrive.bench.scenarios.placement import LanePoint, point_xy, walk
 from cmudrive.maps import RoadMap
 
@@ -21,17 +21,18 @@ PATH_STEP = 1.0  # [m] spacing of lane paths
 
 
 def within(progress: RouteProgress, point: np.ndarray, distance: float) -> bool:
-    """Some CAV in the world is closer than ``distance`` [m] to ``point`` (straight line)."""
-    gap = np.linalg.norm(progress.xy - point, axis=1)
-    return bool(np.any(progress.present & (gap < distance)))
+    """CAV 0 is in the world and closer than ``distance`` [m] to ``point`` (straight line)."""
+    gap = float(np.linalg.norm(progress.xy[EGO] - point))
+    return bool(progress.present[EGO]) and gap < distance
 
 
 def time_to_arrival(progress: RouteProgress, point: np.ndarray, seconds: float, distance: float) -> bool:
-    """TTA(t, d, P): some CAV's straight-line distance to P over its speed is below ``seconds`` [s], or
-    the distance itself below ``distance`` [m] (a standing CAV fires only the distance half)."""
-    gap = np.linalg.norm(progress.xy - point, axis=1)
-    tta = np.where(progress.speed > 0.1, gap / np.maximum(progress.speed, 1e-9), np.inf)
-    return bool(np.any(progress.present & ((tta < seconds) | (gap < distance))))
+    """TTA(t, d, P): CAV 0's straight-line distance to P over its speed is below ``seconds`` [s], or the
+    distance itself below ``distance`` [m] (a standing CAV 0 fires only the distance half)."""
+    if not progress.present[EGO]:
+        return False
+    gap, speed = float(np.linalg.norm(progress.xy[EGO] - point)), float(progress.speed[EGO])
+    return gap < distance or (speed > 0.1 and gap / speed < seconds)
 
 
 def ahead_of(xy: np.ndarray, point: np.ndarray, heading: float) -> np.ndarray:

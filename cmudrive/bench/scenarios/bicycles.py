@@ -8,9 +8,8 @@ of way ignored, no lane changes) runs from the bike-lane point nearest ``start_a
 U[``source_dist_interval``] m; pre-filled at activation outside the junction. The bike lane must cross
 CAV 0's first junction past T. At activation that junction is cleared of background traffic; if CAV 0's
 approach has a traffic light: 5 s with every signal of its light red, then CAV 0's approach green and every
-other signal red for up to ``FORCED_GREEN`` s (then, or at the end, the light's program resumes). End: the
-charged CAVs left that junction
-(along their own routes), or ST240. ``end_actor_flow`` is read and unused, as upstream.
+other signal red until the end (then the light's program resumes). End: CAV 0
+left that junction, or ST240. ``end_actor_flow`` is read and unused, as upstream.
 
 A map without bike lanes (CARLA's Town01-07) has no place for the scenario: setup raises a ScenarioError
 naming the route, the scenario and the reason, and the route is recorded as a route-input error.
@@ -18,14 +17,13 @@ naming the route, the scenario and the reason, and the route is recorded as a ro
 
 from __future__ import annotations
 
-import math
 from typing import ClassVar
 
 import numpy as np
 
-from cmudrive.bench.scenarios.base import RouteProgress, Scenario
+from cmudrive.bench.scenarios.base import EGO, RouteProgress, Scenario
 from cmudrive.bench.scenarios.flows import VehicleFlow
-from cmudrive.bench.scenarios.junctions import exit_distance, red_then_green_stage
+from cmudrive.bench.scenarios.junctions import approach_lanes, exit_distance, red_then_green_stage
 from cmudrive.bench.scenarios.params import Param
 from cmudrive.bench.scenarios.placement import LanePoint
 from cmudrive.bench.scenarios.plan import PlanItem, path
@@ -85,10 +83,8 @@ class CrossingBicycleFlow(Scenario):
                 f"{m.lane_ids[source.lane]}) does not cross CAV 0's junction"
             )
         self.signalized = bool(np.any((m.link_from == self.ego_lane) & (m.link_tls >= 0)))
-        self.goal = np.full(len(self.ctx.routes), math.inf)  # [m] along each charged CAV's route
-        for i, r in enumerate(self.ctx.routes):
-            k0 = int(np.argmin(np.linalg.norm(r.xy - self.trigger_xy, axis=1)))
-            self.goal[i] = exit_distance(r.xy, r.in_junction, r.distance, k0)
+        r = self.ctx.routes[EGO]  # [m] along CAV 0's route: out of its junction
+        self.goal = exit_distance(r.xy, r.in_junction, r.distance, self.trigger_index)
 
     def _exit_lane(self, source: LanePoint) -> int:
         """The bike lane past the first junction downstream of ``source`` (its straight exit if any)."""
@@ -121,15 +117,11 @@ class CrossingBicycleFlow(Scenario):
         if self.signalized:
             k = red_then_green_stage(self.time - self.activated_at)
             if k != self.light_phase:
-                if k == 2:
-                    self.world.lights.release()
-                else:
-                    ego, others = self.PHASES[k]
-                    self.world.lights.force_lanes([self.ego_lane], ego, others)
+                ego, others = self.PHASES[k]
+                self.world.lights.force_lanes(approach_lanes(self.map, self.ego_lane), ego, others)
                 self.light_phase = k
-        driven = np.array([r.distance[k] for r, k in zip(self.ctx.routes, progress.index, strict=True)])
-        self.passed |= driven >= self.goal
-        return bool(np.all(self.passed[self.running_charged()]))
+        self.passed |= self.ego_driven(progress) >= self.goal
+        return self.ego_passed()
 
     def on_end(self) -> None:
         self.flow.stop()

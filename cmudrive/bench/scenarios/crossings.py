@@ -3,10 +3,10 @@ PedestrianCrossing, VehicleTurningRoutePedestrian, VehicleTurningRoute (``refere
 #27, #30, #43, #42).
 
 One family: one or more *crossers* (pedestrians, or a bicycle) stand beside the road, often behind an
-occluder; once some CAV's time to arrival at the crossing point X drops below t s (or its distance below
+occluder; once CAV 0's time to arrival at the crossing point X drops below t s (or its distance below
 d m), each crosser waits its idle time and moves in a straight line across the road at a fixed speed for
-a fixed length, then leaves the world. The scenario ends once every charged CAV still running has driven
-40 m further after the last crosser finished (no scenario timeout: none of these types has ST240).
+a fixed length, then leaves the world. The scenario ends once CAV 0 has driven 40 m further after the
+last crosser finished (no scenario timeout: none of these types has ST240).
 
 ======================  ============================================================================
 type                    crossers, occluders and numbers
@@ -61,7 +61,7 @@ from cmudrive.maps.model import NO_INDEX, LaneKind
 from cmudrive.sim.actor_types import ACTOR_TYPES
 from cmudrive.sim.snapshot import Snapshot
 
-AFTER_CROSSING = 40.0  # [m] the CAVs drive this far after the crossing before the scenario ends
+AFTER_CROSSING = 40.0  # [m] CAV 0 drives this far after the crossing before the scenario ends
 BLOCKER_MODELS = {  # the route file's blueprint name -> our prop type
     "static.prop.vendingmachine": "vending_machine",
     "static.prop.advertisement": "advertisement",
@@ -120,7 +120,7 @@ class Crossing(Scenario):
 
     def on_activate(self, snap: Snapshot) -> None:
         self.fired_at = math.nan
-        self.crossed_at = np.full(len(self.ctx.routes), np.nan)  # [m] route distance at the crossing end
+        self.crossed_at = math.nan  # [m] CAV 0's route distance when the crossing ended
         if self.leave_space is not None and self.background is not None:
             self.background.leave_space(0, self.num("distance") + self.leave_space)
         if self.hidden:
@@ -144,13 +144,13 @@ class Crossing(Scenario):
                 self.world.set_layer_pose(f"{self.spec.name}:{c.suffix}", xy[0], xy[1], yaw, c.speed)
         if not all(c.gone for c in self.crossers):
             return False
-        driven = np.array([r.distance[k] for r, k in zip(self.ctx.routes, progress.index, strict=True)])
-        if np.all(np.isnan(self.crossed_at)):  # the crossing just ended: occluders go too
-            self.crossed_at = driven.copy()
+        driven = self.ego_driven(progress)
+        if math.isnan(self.crossed_at):  # the crossing just ended: occluders go too
+            self.crossed_at = driven
             for actor_id in list(self.actors):
                 self.despawn(actor_id)
         self.passed |= driven - self.crossed_at >= AFTER_CROSSING
-        return bool(np.all(self.passed[self.running_charged()]))
+        return self.ego_passed()
 
     # ------------------------------------------------------------------ placement helpers
     def facing_road(self, lp: LanePoint, direction: str, angle_deg: float = 0.0) -> float:

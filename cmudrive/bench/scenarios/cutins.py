@@ -2,7 +2,7 @@
 #28).
 
 Both are scripted paths of our kinematic layer (the car is pushed into SUMO like a CAV, so traffic
-reacts to it): a car stands beside the ego lane; once some CAV's time to arrival at the ego-lane point
+reacts to it): a car stands beside the ego lane; once CAV 0's time to arrival at the ego-lane point
 abreast it drops below t s (or its distance below d m), it moves onto the ego lane along a smooth lane
 change of ``CHANGE_LENGTH`` m and follows the lane; at the end of its path the scenario's cars are
 removed and the scenario ends. Neither type has a scenario timeout.
@@ -30,7 +30,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from cmudrive.bench.scenarios.base import RouteProgress, Scenario
+from cmudrive.bench.scenarios.base import EGO, RouteProgress, Scenario
 from cmudrive.bench.scenarios.behaviours import PathMotion, lane_change_path, lane_path, time_to_arrival
 from cmudrive.bench.scenarios.params import DIRECTION, KMH, Param
 from cmudrive.bench.scenarios.placement import LanePoint, heading, neighbour, point_xy, side_sign, walk
@@ -84,9 +84,7 @@ class CutIn(Scenario):
             if not time_to_arrival(progress, point, seconds, metres):
                 return False
             self.fired_at = self.time
-            gap = np.linalg.norm(progress.xy - point, axis=1)
-            nearest = int(np.argmin(np.where(progress.present, gap, np.inf)))
-            speed = self.change_speed if self.change_speed is not None else float(progress.speed[nearest])
+            speed = self.change_speed if self.change_speed is not None else float(progress.speed[EGO])
             self.motion = PathMotion(self.path, max(speed, 1.0))
         motion = self.motion
         motion.advance(self.world.dt)

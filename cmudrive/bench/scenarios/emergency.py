@@ -3,13 +3,14 @@
 The emergency vehicle (an ``ambulance`` with SUMO's blue-light device, so SUMO traffic forms a rescue
 lane) is a SUMO vehicle under ``SumoSession.override``: it appears at activation in the ego lane exactly
 ``distance`` m upstream of T_wp (the ego lane removed from background traffic), keeps its lane, runs red
-lights, and is told every tick to drive at the triggering CAV's speed + 25 m/s (90 km/h, the reference's
+lights, and is told every tick to drive at CAV 0's speed + 25 m/s (90 km/h, the reference's
 as-coded number; its type caps it at 36 m/s). SUMO's car-following keeps it from ramming a vehicle ahead
 in its lane: it matches a blocking CAV's speed, as the reference's detection does.
 
 End: the vehicle came within 50 m of CAV 0 and 10 s passed, or it got ahead of CAV 0 within 10 m and then
-drove 50 m. At the end each charged CAV still running is judged (``record_yield_to_emergency_vehicle``):
-ahead of the vehicle's centre along its heading = failed to yield (x0.7). No scenario timeout.
+drove 50 m. At the end CAV 0, the scenario's ego, is judged if it is still running
+(``record_yield_to_emergency_vehicle``): ahead of the vehicle's centre along its heading = failed to yield
+(x0.7). Other CAVs ahead of the vehicle are not charged (upstream's test is the ego's). No scenario timeout.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import math
 
 import numpy as np
 
-from cmudrive.bench.scenarios.base import RouteProgress, Scenario
+from cmudrive.bench.scenarios.base import EGO, RouteProgress, Scenario
 from cmudrive.bench.scenarios.behaviours import ahead_of, lane_path
 from cmudrive.bench.scenarios.params import Param
 from cmudrive.bench.scenarios.placement import heading, neighbour, point_xy, walk
@@ -108,12 +109,12 @@ class YieldToEmergencyVehicle(Scenario):
         ev_xy, ev_yaw = np.array([snap.x[r], snap.y[r]]), float(snap.yaw[r])
         self.ev_pose = (ev_xy, ev_yaw)
         self.world.sumo.override(
-            self.ev_id, ignore_lights=True, speed=float(progress.speed[0]) + EXTRA_SPEED, lane_changes=False
+            self.ev_id, ignore_lights=True, speed=float(progress.speed[EGO]) + EXTRA_SPEED, lane_changes=False
         )
-        gap = float(np.linalg.norm(progress.xy[0] - ev_xy))
+        gap = float(np.linalg.norm(progress.xy[EGO] - ev_xy))
         if math.isnan(self.near_at) and gap < NEAR:
             self.near_at = self.time
-        ev_ahead = not bool(ahead_of(progress.xy[:1], ev_xy, ev_yaw)[0])
+        ev_ahead = not bool(ahead_of(progress.xy[EGO : EGO + 1], ev_xy, ev_yaw)[0])
         if math.isnan(self.passed_at) and ev_ahead and gap < PASS_NEAR:
             self.passed_at = self._driven()
         if not math.isnan(self.passed_at) and self._driven() - self.passed_at >= PASS_DRIVE:
@@ -127,9 +128,8 @@ class YieldToEmergencyVehicle(Scenario):
 
     def on_end(self) -> None:
         pose = getattr(self, "ev_pose", None)
-        if pose is not None:
-            for i in np.flatnonzero(self.running_charged()).tolist():
-                self.criteria.record_yield_to_emergency_vehicle(i, pose[0], pose[1], actor=self.ev_id)
+        if pose is not None and self.ego_running():
+            self.criteria.record_yield_to_emergency_vehicle(EGO, pose[0], pose[1], actor=self.ev_id)
         self.world.sumo.remove(self.ev_id)
         if self.background is not None:
             self.background.readd_lane([self.t_wp.lane])

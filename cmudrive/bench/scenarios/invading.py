@@ -7,7 +7,7 @@ edge, every 5 m from 15 m (toward the CAV) past the flow's source while they cov
 CAVs): cars start at S = the oncoming lane beside next(``distance`` + 30) every 40 m of headway, drive the
 oncoming lane toward the oncoming point abreast T at the ego lane's speed limit, shifted
 ``offset`` + w/2 - 0.7 m toward the ego lane (so they cross the centre line by about ``offset`` + 0.2 m),
-and leave at its end. End: a charged CAV is past S and within 50 m of it, or ST240; then cones and cars
+and leave at its end. End: CAV 0 is past S and within 50 m of it, or ST240; then cones and cars
 are removed, the ego lane re-added and oncoming traffic resumed.
 """
 
@@ -17,7 +17,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from cmudrive.bench.scenarios.base import RouteProgress, Scenario
+from cmudrive.bench.scenarios.base import EGO, RouteProgress, Scenario
 from cmudrive.bench.scenarios.behaviours import PathMotion, ahead_of, lane_path
 from cmudrive.bench.scenarios.params import Param
 from cmudrive.bench.scenarios.placement import LanePoint, heading, point_xy, walk
@@ -96,10 +96,11 @@ class InvadingTurn(Scenario):
                 continue
             xy, yaw = motion.pose()
             self.world.set_layer_pose(f"{self.spec.name}:{name}", xy[0], xy[1], yaw, motion.speed)
-        past = ahead_of(progress.xy, self.s_xy, self.s_heading)
-        near = np.linalg.norm(progress.xy - self.s_xy, axis=1) < PAST_NEAR
-        self.passed |= progress.present & past & near
-        return bool(np.all(self.passed[self.running_charged()]))
+        ego = progress.xy[EGO : EGO + 1]
+        past = bool(ahead_of(ego, self.s_xy, self.s_heading)[0])
+        near = float(np.linalg.norm(ego[0] - self.s_xy)) < PAST_NEAR
+        self.passed |= bool(progress.present[EGO]) and past and near
+        return self.ego_passed()
 
     def on_end(self) -> None:
         background = self.background

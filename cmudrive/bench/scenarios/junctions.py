@@ -8,22 +8,22 @@ type                                       behaviour and end
 =========================================  ===============================================================
 BlockedIntersection                        at activation the junction is cleared of background traffic and
                                            a car (brake lights) stands 5 m past the route's junction exit;
-                                           once a CAV is within 13 m of it, 10 s idle, then it is removed
+                                           once CAV 0 is within 13 m of it, 10 s idle, then it is removed
                                            and the scenario ends; ST240
 SequentialLaneChange, T_Junction           no actors: a 200 m drive counter from activation; ST240
-VanillaNonSignalizedTurn(+Stopsign)        no actors: ends once the CAVs left the junction + 10 m
+VanillaNonSignalizedTurn(+Stopsign)        no actors: ends once CAV 0 left the junction + 10 m
 VanillaSignalizedTurnEncounterGreenLight   lights: 5 s CAV 0's approach green / all others red, then 5 s
-                                           all red, then released; ends when that sequence finishes or the
-                                           CAVs left the junction + 10 m
+                                           all red, then released; ends when that sequence finishes or
+                                           CAV 0 left the junction + 10 m
 VanillaSignalizedTurnEncounterRedLight     lights: 5 s all red, then CAV 0's approach green / others red
                                            until the end (junction + 10 m), then released
 =========================================  ===============================================================
 
-"Left the junction + 10 m" and the drive counters are per charged CAV, along its own route; the scenario
-ends once every charged CAV still running has met it. Forced light states go through
-``World.lights.force_lanes`` and ``release`` (the program and phase resume, with the time the phase had
-left); a forced green with every other signal red is held ``FORCED_GREEN`` s at most, as with several CAVs
-another charged CAV may wait on one of those reds.
+"Left the junction + 10 m" and the drive counters are CAV 0's, along its route (CAV 0 is the scenario's
+ego, ``base.py``). A forced light is a whole approach, as a CARLA traffic light is (``approach_lanes``:
+every signalised lane of CAV 0's road into the junction), forced through ``World.lights.force_lanes`` and
+held until the scenario ends; then ``release`` gives the light back to its program (the program and phase
+resume, with the time the phase had left).
 """
 
 from __future__ import annotations
@@ -33,26 +33,32 @@ from typing import ClassVar
 
 import numpy as np
 
-from cmudrive.bench.scenarios.base import RouteProgress, Scenario
+from cmudrive.bench.scenarios.base import EGO, RouteProgress, Scenario
 from cmudrive.bench.scenarios.behaviours import within
 from cmudrive.bench.scenarios.placement import heading, point_xy, walk
 from cmudrive.bench.scenarios.plan import PlanItem, point
+from cmudrive.maps import RoadMap
 from cmudrive.sim.dynamics import Controls
 from cmudrive.sim.snapshot import Snapshot
 
 AFTER_JUNCTION = 10.0  # [m] driven past the junction exit
 DRIVE_COUNTER = 200.0  # [m] SequentialLaneChange, T_Junction
 LIGHT_PHASE = 5.0  # [s] each forced light phase
-# [s] the longest a scenario holds a forced green (with every other signal of the light red) before the
-# light's program resumes: with several CAVs, a CAV on another approach that the scenario also charges
-# would otherwise wait at the forced red until the scenario's 240 s timeout (blocked after 60 s)
-FORCED_GREEN = 15.0
 
 
 def red_then_green_stage(elapsed: float) -> int:
     """The stage of a scenario's "red, then green" light sequence ``elapsed`` s after activation: 0 the
-    LIGHT_PHASE s of red, 1 the forced green (at most FORCED_GREEN s), 2 released to the program."""
-    return 0 if elapsed < LIGHT_PHASE else 1 if elapsed < LIGHT_PHASE + FORCED_GREEN else 2
+    LIGHT_PHASE s of red, 1 the forced green, held until the scenario ends."""
+    return 0 if elapsed < LIGHT_PHASE else 1
+
+
+def approach_lanes(m: RoadMap, lane: int) -> list[int]:
+    """The signalised lanes of ``lane``'s road (its edge) into the junction: one CARLA traffic light
+    governs them all, so a scenario forces them together (``lane`` first)."""
+    signalised = np.zeros(len(m.lane_edge), bool)
+    signalised[m.link_from[m.link_tls >= 0]] = True
+    same = np.flatnonzero((m.lane_edge == m.lane_edge[lane]) & signalised)
+    return [lane, *(int(i) for i in same if i != lane)]
 
 
 def exit_distance(route_xy: np.ndarray, in_junction: np.ndarray, distance: np.ndarray, k0: int) -> float:
@@ -65,8 +71,8 @@ def exit_distance(route_xy: np.ndarray, in_junction: np.ndarray, distance: np.nd
 
 
 class RouteRule(Scenario):
-    """No-actor scenarios that end once each charged CAV drove a distance along its own route: past its
-    first junction after T + ``AFTER_JUNCTION`` (``counter`` None) or ``counter`` m from activation."""
+    """No-actor scenarios that end once CAV 0 drove a distance along its route: past its first junction
+    after T + ``AFTER_JUNCTION`` (``counter`` None) or ``counter`` m from T."""
 
     uses_timeout = False
     counter: ClassVar[float | None] = None  # [m]
@@ -75,20 +81,15 @@ class RouteRule(Scenario):
     def place(self) -> None:
         if self.needs_junction:
             self.junction_exit()  # refuses a route without a junction after T
-        self.goal = np.full(len(self.ctx.routes), math.inf)  # [m] per CAV along its route
-        for i, r in enumerate(self.ctx.routes):
-            if not self.charged[i]:
-                continue
-            k0 = int(np.argmin(np.linalg.norm(r.xy - self.trigger_xy, axis=1)))
-            if self.counter is None:
-                self.goal[i] = exit_distance(r.xy, r.in_junction, r.distance, k0) + AFTER_JUNCTION
-            else:
-                self.goal[i] = float(r.distance[k0]) + self.counter
+        r, k0 = self.ctx.routes[EGO], self.trigger_index
+        if self.counter is None:  # [m] along CAV 0's route
+            self.goal = exit_distance(r.xy, r.in_junction, r.distance, k0) + AFTER_JUNCTION
+        else:
+            self.goal = float(r.distance[k0]) + self.counter
 
     def on_update(self, snap: Snapshot, progress: RouteProgress) -> bool:
-        driven = np.array([r.distance[k] for r, k in zip(self.ctx.routes, progress.index, strict=True)])
-        self.passed |= driven >= self.goal
-        return bool(np.all(self.passed[self.running_charged()]))
+        self.passed |= self.ego_driven(progress) >= self.goal
+        return self.ego_passed()
 
 
 class T_Junction(RouteRule):
@@ -122,7 +123,7 @@ class VanillaNonSignalizedTurnEncounterStopsign(RouteRule):
 
 class SignalizedTurn(RouteRule):
     """Forced light phases on CAV 0's approach to its junction: ``phases`` of (ego signal, others) for
-    ``LIGHT_PHASE`` s each; the last one holds until the end unless ``end_with_lights``."""
+    ``LIGHT_PHASE`` s each; the last one holds until the scenario ends unless ``end_with_lights``."""
 
     phases: ClassVar[tuple[tuple[str, str], ...]] = ()
     end_with_lights: ClassVar[bool] = False
@@ -149,10 +150,8 @@ class SignalizedTurn(RouteRule):
         k = min(int(elapsed // LIGHT_PHASE), len(self.phases))
         if k < len(self.phases) and k != self.phase_index:
             ego, others = self.phases[k]
-            self.world.lights.force_lanes([self.approach], ego, others)
+            self.world.lights.force_lanes(approach_lanes(self.map, self.approach), ego, others)
             self.phase_index = k
-        if elapsed >= LIGHT_PHASE * (len(self.phases) - 1) + FORCED_GREEN:
-            self.world.lights.release()  # the last phase is held FORCED_GREEN s at most (a no-op later)
         if k == len(self.phases) and self.end_with_lights:
             return True
         return super().on_update(snap, progress)
@@ -208,8 +207,10 @@ class BlockedIntersection(Scenario):
 class ControlLoss(RouteRule):
     """#6: three patches on the ego lane 14, 48 and 74 m past T_wp; a CAV within 2 m of a patch gets noise
     added to its own controls every tick: throttle + N(+-0.03, 0.01) in [0, 1], steer + N(+-0.055, 0.015)
-    in [-1, 1], the signs drawn once per patch. Ends once the charged CAVs drove 110 m from T (the third
-    patch + 36 m). The patches are cosmetic upstream (dirt decals); we place none."""
+    in [-1, 1], the signs drawn once per patch. Ends once CAV 0 drove 110 m from T (the third patch + 36 m).
+    The patches are cosmetic upstream (dirt decals); we place none. Unlike the triggers, the noise acts on
+    every CAV that drives over a patch, as the road under it would: another CAV on CAV 0's lane meets
+    the same patches, as it meets the same obstacles."""
 
     type_name = "ControlLoss"
     counter = 110.0

@@ -2,9 +2,9 @@
 
 One family (``reference/SCENARIOS.md`` #1, #4, #11, #25 and "Lane blockers / obstacles"): something
 blocks the ego lane on a junction-free stretch with a free same-direction lane beside it; the CAV must
-pass it through that lane. Shared sequence: ``LeaveSpace`` at activation; once a CAV is within
+pass it through that lane. Shared sequence: ``LeaveSpace`` at activation; once CAV 0 is within
 ``close_distance`` of the first obstacle, idle 5 s, then cap background traffic (``MaxSpeed``); the
-scenario ends when every charged CAV still running is ahead of the end point E (50 m past the last
+scenario ends when CAV 0 is ahead of the end point E (50 m past the last
 obstacle, "in front of" test with no distance limit), or after the 240 s timeout. The actors are
 removed and the cap lifted at the end.
 
@@ -34,7 +34,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from cmudrive.bench.scenarios.base import RouteProgress, Scenario
+from cmudrive.bench.scenarios.base import EGO, RouteProgress, Scenario
 from cmudrive.bench.scenarios.behaviours import PathMotion, ahead_of, lane_path, time_to_arrival, within
 from cmudrive.bench.scenarios.flows import VehicleFlow, flow_path
 from cmudrive.bench.scenarios.params import DIRECTION, KMH, Param
@@ -53,7 +53,7 @@ from cmudrive.maps.model import NO_INDEX, LaneKind
 from cmudrive.sim.actor_types import ACTOR_TYPES
 from cmudrive.sim.snapshot import Snapshot
 
-IDLE = 5.0  # [s] after a CAV came close, before background traffic is capped
+IDLE = 5.0  # [s] after CAV 0 came close, before background traffic is capped
 END_MARGIN = 50.0  # [m] the end point lies this far past the last obstacle
 SIGN_PUSH = 0.3  # [lane widths] the warning sign's extra outward push
 
@@ -74,7 +74,7 @@ class Item:
 class LaneObstacle(Scenario):
     """The family's shared behaviour; subclasses give ``layout`` and the numbers."""
 
-    close_distance: ClassVar[float] = 50.0  # [m] a CAV this close to the first obstacle starts the idle
+    close_distance: ClassVar[float] = 50.0  # [m] CAV 0 this close to the first obstacle starts the idle
     leave_space_extra: ClassVar[float] = 36.0  # [m] LeaveSpace(distance + this) at activation
     hidden: ClassVar[bool] = False  # True: obstacles appear at activation (else at instantiation)
     warning_sign: ClassVar[bool] = True
@@ -111,7 +111,7 @@ class LaneObstacle(Scenario):
         self.first_xy = point_xy(self.map, self.items[0].at, self.items[0].offset)
         w = width(self.map, self.t_wp)
         self.sign_xy, _ = roadside(self.map, self.t_wp, self.direction, SIGN_PUSH * w)
-        self.close_at = np.nan  # [s] when a CAV first came within close_distance
+        self.close_at = np.nan  # [s] when CAV 0 first came within close_distance
         self.capped = False
         self.flow: VehicleFlow | None = None
 
@@ -150,27 +150,29 @@ class LaneObstacle(Scenario):
         if self.flow is not None:
             self.flow.update(snap)
         self.update_passed(progress)
-        return bool(np.all(self.passed[self.running_charged()]))
+        return self.ego_passed()
 
     def close_point(self) -> np.ndarray:
         return self.first_xy
 
     def close_trigger(self, progress: RouteProgress) -> bool:
-        """A CAV came close: the idle before the background cap (or the TwoWays switches) starts."""
+        """CAV 0 came close: the idle before the background cap (or the TwoWays switches) starts."""
         return within(progress, self.close_point(), self.close_distance)
 
     def update_passed(self, progress: RouteProgress) -> None:
-        self.passed |= progress.present & ahead_of(progress.xy, self.end_xy, self.end_heading)
+        ahead = bool(ahead_of(progress.xy[EGO : EGO + 1], self.end_xy, self.end_heading)[0])
+        self.passed |= bool(progress.present[EGO]) and ahead
 
     def after_idle(self) -> None:
-        """One-way: cap background traffic (MaxSpeed). TwoWays: WrongDirOff for the charged CAVs, OppOff,
-        and an OppositeFlow on the oncoming lane beside the last obstacle."""
+        """One-way: cap background traffic (MaxSpeed). TwoWays: WrongDirOff for the affected CAVs (every CAV
+        whose route passes the trigger meets the obstacle), OppOff, and an OppositeFlow on the oncoming lane
+        beside the last obstacle."""
         background = self.background
         if not self.two_ways:
             if background is not None:
                 background.max_speed(self.num("speed") * KMH)
             return
-        for i in np.flatnonzero(self.charged).tolist():
+        for i in np.flatnonzero(self.affected).tolist():
             self.criteria.set_wrong_direction_check(i, False)
         if not self.opposite_flow:
             return
@@ -214,7 +216,7 @@ class LaneObstacle(Scenario):
         if self.capped and not self.two_ways and background is not None:
             background.max_speed(None)
         if self.capped and self.two_ways:
-            for i in np.flatnonzero(self.charged).tolist():
+            for i in np.flatnonzero(self.affected).tolist():
                 self.criteria.set_wrong_direction_check(i, True)
             if self.flow is not None:
                 self.flow.stop()
@@ -333,7 +335,7 @@ class HazardAtSideLane(LaneObstacle):
             for it in self.items
         ]
         self.riding = False
-        self.ahead_at = np.full(len(self.ctx.routes), np.nan)  # [m] route distance when ahead of bike 2
+        self.ahead_at = np.nan  # [m] CAV 0's route distance when it got ahead of bicycle 2
 
     def plan(self) -> list[PlanItem]:
         return super().plan() + [path("ride", bike.path) for bike in self.bikes]
@@ -356,13 +358,14 @@ class HazardAtSideLane(LaneObstacle):
         return self.bikes[0].pose()[0]
 
     def update_passed(self, progress: RouteProgress) -> None:
-        """Ahead of bicycle 2 (by both half-lengths), then 50 m more along the CAV's own route."""
+        """CAV 0 ahead of bicycle 2 (by both half-lengths), then 50 m more along its route."""
         xy, yaw = self.bikes[1].pose()
         margin = 0.5 * (1.8 + 4.89)  # [m] half-lengths of a bicycle and a CAV
         front = xy + margin * np.array([np.cos(yaw), np.sin(yaw)])
-        driven = np.array([r.distance[k] for r, k in zip(self.ctx.routes, progress.index, strict=True)])
-        newly = np.isnan(self.ahead_at) & progress.present & ahead_of(progress.xy, front, yaw)
-        self.ahead_at[newly] = driven[newly]
+        driven = self.ego_driven(progress)
+        if np.isnan(self.ahead_at) and progress.present[EGO]:
+            if ahead_of(progress.xy[EGO : EGO + 1], front, yaw)[0]:
+                self.ahead_at = driven
         self.passed |= driven - self.ahead_at >= END_MARGIN
 
 

@@ -114,9 +114,8 @@ class ParkingExit(Scenario):
             if driven >= BESIDE_DRIVE or self.beside not in self.world.sumo.actors:
                 self.world.sumo.remove(self.beside)
                 self.beside_gone = True
-        self.passed[0] = float(self.ctx.routes[0].distance[progress.index[0]]) >= self.goal
-        self.passed[1:] = True  # only CAV 0 starts in the slot
-        return bool(self.passed[0]) or not bool(self.running_charged()[0])
+        self.passed |= self.ego_driven(progress) >= self.goal
+        return self.ego_passed()
 
     def on_end(self) -> None:
         self.world.sumo.remove(self.beside)

@@ -14,8 +14,8 @@ CAV 0's route turns at its first junction past T (left or right, as the type say
 
 with gaps U[``source_dist_interval``] m; the junction is cleared of background traffic at activation.
 The signalized types force the lights: 5 s CAV 0's approach red and the flow's approach green (every
-other signal red), then both green for up to ``FORCED_GREEN`` s, then released. End: the charged CAVs
-drove 10 m past the junction, or the 240 s timeout.
+other signal red), then both green until the scenario ends (each approach forced whole, as a CARLA light).
+End: CAV 0 drove 10 m past the junction, or the 240 s timeout.
 """
 
 from __future__ import annotations
@@ -25,9 +25,14 @@ from typing import ClassVar
 
 import numpy as np
 
-from cmudrive.bench.scenarios.base import RouteProgress, Scenario
+from cmudrive.bench.scenarios.base import EGO, RouteProgress, Scenario
 from cmudrive.bench.scenarios.flows import VehicleFlow
-from cmudrive.bench.scenarios.junctions import AFTER_JUNCTION, exit_distance, red_then_green_stage
+from cmudrive.bench.scenarios.junctions import (
+    AFTER_JUNCTION,
+    approach_lanes,
+    exit_distance,
+    red_then_green_stage,
+)
 from cmudrive.bench.scenarios.params import Param
 from cmudrive.bench.scenarios.placement import LanePoint, walk
 from cmudrive.bench.scenarios.plan import PlanItem, path
@@ -100,10 +105,8 @@ class JunctionTurnFlow(Scenario):
             )  # fmt: skip
         except RouteError as exc:
             raise self.error(f"no place for the flow: {exc}") from None
-        self.goal = np.full(len(self.ctx.routes), math.inf)
-        for i, r in enumerate(self.ctx.routes):
-            k0 = int(np.argmin(np.linalg.norm(r.xy - self.trigger_xy, axis=1)))
-            self.goal[i] = exit_distance(r.xy, r.in_junction, r.distance, k0) + AFTER_JUNCTION
+        r = self.ctx.routes[EGO]  # [m] along CAV 0's route: 10 m past its junction
+        self.goal = exit_distance(r.xy, r.in_junction, r.distance, self.trigger_index) + AFTER_JUNCTION
         if self.signalized and not np.any((m.link_from == self.ego_lane) & (m.link_tls >= 0)):
             raise self.error("no place for the scenario: CAV 0's junction has no traffic light")
 
@@ -137,15 +140,11 @@ class JunctionTurnFlow(Scenario):
             k = red_then_green_stage(self.time - self.activated_at)
             if k != self.light_phase:
                 lights = self.world.lights
-                if k == 2:
-                    lights.release()
-                else:
-                    lights.force_lanes([self.flow_lane], "G", others="r")
-                    lights.force_lanes([self.ego_lane], "r" if k == 0 else "G")
+                lights.force_lanes(approach_lanes(self.map, self.flow_lane), "G", others="r")
+                lights.force_lanes(approach_lanes(self.map, self.ego_lane), "r" if k == 0 else "G")
                 self.light_phase = k
-        driven = np.array([r.distance[k] for r, k in zip(self.ctx.routes, progress.index, strict=True)])
-        self.passed |= driven >= self.goal
-        return bool(np.all(self.passed[self.running_charged()]))
+        self.passed |= self.ego_driven(progress) >= self.goal
+        return self.ego_passed()
 
     def on_end(self) -> None:
         if self.flow is not None:
