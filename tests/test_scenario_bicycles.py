@@ -54,7 +54,8 @@ def test_bicycles_ride_the_bike_lane_across_the_cav_turn_at_the_flow_speed(
 ) -> None:
     """Bicycles appear at the source (the later ones) or along the path (pre-filled), ride at 8 m/s on the
     bike lane through the junction across CAV 0's route; CAV 0's signal is red for 5 s from the
-    activation with every other signal of the light red, then green with the others red until the end;
+    activation with every other signal of the light red, then green (every lane of its road) with the others
+    red until the end;
     the light is released afterwards."""
     seen: list[tuple[float, float]] = []
     original = Scenario.finish
@@ -105,7 +106,9 @@ def test_bicycles_ride_the_bike_lane_across_the_cav_turn_at_the_flow_speed(
     assert all(set(s) <= {"r", "y"} for s in states[tick(act) + 1 : tick(act + YELLOW_TIME)])
     green = states[tick(act + 5.0) + 1 : tick(end)]
     assert green and all(s[k] == "G" and set(s[:k] + s[k + 1 :]) <= {"r", "G"} for s in green)
-    ego_links = np.flatnonzero((m.link_from == route.lane[before]) & (m.link_tls == light))
+    approach = np.flatnonzero(m.lane_edge == m.lane_edge[route.lane[before]])  # CAV 0's road: one light
+    ego_links = np.flatnonzero(np.isin(m.link_from, approach) & (m.link_tls == light))
+    assert all({s[i] for i in m.link_tls_index[ego_links]} == {"G"} for s in green)  # the whole approach
     others = np.setdiff1d(np.arange(len(states[0])), m.link_tls_index[ego_links])
     assert all(set(np.array(list(s))[others]) == {"r"} for s in green)  # every other signal red
     program = set(m.tls_phases(light)[1].tolist())

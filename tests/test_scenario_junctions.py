@@ -16,6 +16,7 @@ from cmudrive.bench import EvalConfig, RouteSpec
 from cmudrive.bench.criteria import CriteriaConfig
 from cmudrive.bench.scenarios import ScenarioConfig
 from cmudrive.bench.scenarios.base import Scenario
+from cmudrive.bench.scenarios.junctions import LIGHT_PHASE
 from cmudrive.maps import RoadMap, load_map
 from cmudrive.sim.dynamics import Controls
 from cmudrive.sim.traffic_lights import YELLOW_TIME
@@ -257,3 +258,33 @@ def test_hard_break_stops_the_traffic_ahead_for_10_s(tmp_path: Path) -> None:
     assert stopped and max(stopped) < 0.5
     moving = [v[act + 300] for v in speeds.values() if not np.isnan(v[act + 300])]  # 5 s after the restart
     assert moving and max(moving) > 3.0
+
+
+class StopsAfterTrigger(StopsAt):
+    STOP_TIME = 9.0  # [s]: CAV 0 (Town03, from s = 10 m) has passed the trigger at s = 80 m
+
+
+def test_the_forced_green_is_the_whole_approach_held_until_the_scenario_ends(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """VanillaSignalizedTurnEncounterRedLight on Town03's two-lane approach -2 (one traffic light upstream):
+    CAV 0 stops after the trigger and never leaves the junction, so the scenario runs to the route's end
+    (40 s). From 5 s after activation to that end, every signal of *both* lanes of the approach is green
+    and every other signal of the light red: no 15 s cap, no lane of the approach left red."""
+    seen = ends(monkeypatch)
+    m = load_map("Town03")
+    spec = through(m, "VanillaSignalizedTurnEncounterRedLight", "-2_3", "-21_4", 80.0)
+    _, log = run(spec, tmp_path, StopsAfterTrigger, EvalConfig(background=EMPTY, tick_cap=800))
+    end, _, act = seen[0]
+    assert end == pytest.approx(40.0, abs=0.1) and act < 9.0  # ended with the route, activated before
+    lanes = [m.lane("-2_3"), m.lane("-2_4")]
+    links = np.flatnonzero(np.isin(m.link_from, lanes) & (m.link_tls >= 0))
+    light = int(m.link_tls[links[0]])
+    assert set(m.link_tls[links].tolist()) == {light} and len(links) >= 2
+    ours = m.link_tls_index[links]
+    first = round((act + LIGHT_PHASE) / 0.05) + 1
+    for k in range(first, log.num_ticks - 1):
+        state = str(log.tls_state(k)[light])
+        assert {state[i] for i in ours} == {"G"}, (k, state)
+        assert {c for i, c in enumerate(state) if i not in set(ours.tolist())} == {"r"}, (k, state)
+    assert log.num_ticks - first > round(20.0 / 0.05)  # held for more than 20 s
