@@ -13,8 +13,12 @@ import numpy as np
 import pytest
 
 from cmudrive.bench import RouteSpec
-from cmudrive.maps import load_map
+from cmudrive.bench.scenarios.flows import VehicleFlow
+from cmudrive.bench.scenarios.placement import LanePoint
+from cmudrive.maps import LanePos, RoadMap, RoutePlanner, load_map
 from cmudrive.maps.coords import map_to_carla
+from cmudrive.maps.model import LaneKind
+from cmudrive.sim import Controls, World, WorldConfig
 from tests.scenario_helpers import cav_track, path_cav, run, scenario, track, trigger
 
 # town, ramp lane (CAV 0), s on it (start, trigger), main lane (flow source) and s, exit lane (sink) and s
@@ -166,3 +170,58 @@ def test_interurban_advanced_two_flows_on_both_carriageways(
     end = max(int(np.flatnonzero(~np.isnan(track(log, x)[:, 0]))[-1]) for x in ids)
     sink2 = m.index.frenet_to_xy(np.array([src_lane]), np.array([src_s]))[0]
     assert np.linalg.norm(cav_track(log, 0)[end + 1, :2] - sink2) < 3.5 + 4.0  # CAV 0 reached flow 2's sink
+
+
+def test_an_actor_flow_drives_into_a_standing_cav_then_follows_cars(mini_net: Path, mini: RoadMap) -> None:
+    """On the mini network's one-lane road C-E a CAV stands at s = 120 m in the path of an ActorFlow (12 m/s,
+    a car every 30 m from s = 20 m). As upstream's, the flow's cars ignore vehicles until their first
+    collision: the first car is still at 12 m/s 1 m before it hits the CAV. From then on the flow follows
+    cars: the second car stops behind the first without touching anything."""
+    lane = mini.lane("CE_1")
+    route = RoutePlanner(mini).plan_lanes(LanePos(lane, 120.0), LanePos(lane, 190.0))
+    hits: list[tuple[int, str, str]] = []
+    speed: dict[str, list[float]] = {"F:0": [], "F:1": []}
+    with World(WorldConfig(town=mini_net, seed=1), road_map=mini) as world:
+        world.add_cav(route, speed=0.0)
+        rng = np.random.default_rng(0)
+        flow = VehicleFlow(
+            "F", world, mini, LanePoint(lane, 20.0), LanePoint(lane, 195.0), (30.0, 30.0), 12.0, rng, True
+        )
+        stand = Controls(np.zeros(1), np.zeros(1), np.ones(1))
+        snap = world.tick(stand)
+        for k in range(500):  # 25 s
+            flow.update(snap)
+            snap = world.tick(stand)
+            ev = world.collisions
+            hits += [(k, str(a), str(b)) for a, b in zip(ev.id_a, ev.id_b, strict=True)]
+            for car, v in speed.items():
+                r = np.flatnonzero(snap.ids == car)
+                v.append(float(snap.speed[r[0]]) if len(r) else np.nan)
+    first = [k for k, a, b in hits if {a, b} == {"F:0", "cav0"}]
+    assert first, hits  # the first flow car hit the standing CAV ...
+    v0 = np.array(speed["F:0"][first[0] - 2 : first[0]])
+    assert v0 == pytest.approx(12.0, abs=0.05)  # ... without braking for it
+    assert flow.collided
+    assert not [h for h in hits if "F:1" in h[1:]]  # the next car never touched anything ...
+    v1 = np.array(speed["F:1"])
+    assert np.nanmin(v1[first[0] :]) < 0.1  # ... it stopped behind
+
+
+@pytest.mark.parametrize("town", ["highway", "Town06"])
+def test_a_merge_ends_at_any_lane_of_the_road_at_the_sink(town: str) -> None:
+    """MergerIntoSlowTraffic's end is CAV 0 within 2 m of any same-direction lane point abreast the sink
+    (upstream's), not the flow's sink alone: one end point on each driving lane of the sink's road, all
+    abreast the sink (within 0.5 m along the road)."""
+    from cmudrive.bench.route_check import build_placed
+
+    m = load_map(town)
+    spec, dst = flow_route(town, "MergerIntoSlowTraffic")
+    (sc,) = build_placed(spec, m, spec.dense_routes(m))
+    out = m.lane(SCENES[town][5])
+    road = np.flatnonzero((m.lane_edge == m.lane_edge[out]) & (m.lane_kind == LaneKind.DRIVING))
+    assert len(road) >= 2 and len(sc.sinks) == len(road)
+    on = m.index.nearest_lane(sc.sinks, max_distance=0.1)
+    assert sorted(on.lane.tolist()) == sorted(road.tolist())
+    h = sc.sink_heading[0]
+    along = (sc.sinks - dst) @ np.array([np.cos(h), np.sin(h)])
+    assert np.abs(along).max() < 0.5

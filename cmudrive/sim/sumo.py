@@ -41,6 +41,7 @@ SUMO_STEP = 0.05  # [s]
 LATERAL_RESOLUTION = 0.8  # [m] sublane width
 MAX_DEPART_DELAY = 5.0  # [s]
 SPEED_MODE_ALL = 31  # SUMO speed mode: safe speed, accel, decel, right of way, red lights all respected
+SPEED_MODE_SAFE_SPEED = 1  # bit: keep a safe speed behind the vehicle ahead (car-following)
 SPEED_MODE_RIGHT_OF_WAY = 8  # bit: respect right of way at junctions
 SPEED_MODE_RED_LIGHT = 16  # bit: brake for red lights
 LANE_CHANGE_MODE_DEFAULT = 1621  # SUMO's default lane-change mode
@@ -324,12 +325,14 @@ class SumoSession:
         *,
         ignore_lights: bool = False,
         ignore_right_of_way: bool = False,
+        ignore_vehicles: bool = False,
         speed: float | None = None,
         lane_changes: bool = True,
     ) -> None:
-        """Scenario control of a SUMO vehicle: run red lights, ignore right of way at junctions, hold a
-        fixed ``speed`` [m/s] (0: a standing obstacle that traffic changes lanes around; -1: back to SUMO's
-        own choice), no lane changes. Uses SUMO's speed-mode bits (default 31: every check on)."""
+        """Scenario control of a SUMO vehicle: run red lights, ignore right of way at junctions, ignore the
+        vehicle ahead (no safe-speed car-following: it drives into what stands in its lane), hold a fixed
+        ``speed`` [m/s] (0: a standing obstacle that traffic changes lanes around; -1: back to SUMO's own
+        choice), no lane changes. Uses SUMO's speed-mode bits (default 31: every check on)."""
         import libsumo
 
         mode = SPEED_MODE_ALL
@@ -337,6 +340,8 @@ class SumoSession:
             mode &= ~SPEED_MODE_RED_LIGHT
         if ignore_right_of_way:
             mode &= ~SPEED_MODE_RIGHT_OF_WAY
+        if ignore_vehicles:
+            mode &= ~SPEED_MODE_SAFE_SPEED
         try:
             libsumo.vehicle.setSpeedMode(vid, mode)
             if speed is not None:

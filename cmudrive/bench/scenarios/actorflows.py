@@ -11,7 +11,8 @@ with gaps U[``source_dist_interval``] m; all have the 240 s scenario timeout.
   ends when CAV 0 reached a sink.
 * HighwayExit: one pre-filled flow; its source lane removed from background traffic (not re-added, as
   upstream); ends when CAV 0 left the first junction past T.
-* MergerIntoSlowTraffic(V2): one pre-filled flow; the junction cleared; ends when CAV 0 reached the sink.
+* MergerIntoSlowTraffic(V2): one pre-filled flow; the junction cleared and the source lane removed from
+  background traffic; ends when CAV 0 reached any lane of the road at the sink.
 * InterurbanActorFlow: one flow, not pre-filled; background oncoming traffic off during the scenario; ends
   when CAV 0 left the first junction past T.
 
@@ -57,6 +58,7 @@ class ActorFlowScenario(Scenario):
     clear_junction: ClassVar[bool] = False
     remove_source_lane: ClassVar[bool] = False
     opposite_off: ClassVar[bool] = False
+    sink_road: ClassVar[bool] = False  # the end is any same-direction lane abreast the sink (else the sink)
 
     def locate(self, name: str) -> LanePoint:
         x, y, _ = self.span(name)
@@ -71,8 +73,11 @@ class ActorFlowScenario(Scenario):
     def place(self) -> None:
         source, sink = self.locate("start_actor_flow"), self.locate("end_actor_flow")
         self.pairs = self._pairs(source, sink) if self.all_lanes else [(source, sink)]
-        self.sinks = np.array([point_xy(self.map, b) for _, b in self.pairs])  # (k, 2)
-        self.sink_heading = np.array([heading(self.map, b) for _, b in self.pairs])
+        ends = [b for _, b in self.pairs]
+        if self.sink_road:
+            ends = self._abreast(sink)
+        self.sinks = np.array([point_xy(self.map, b) for b in ends])  # (k, 2)
+        self.sink_heading = np.array([heading(self.map, b) for b in ends])
         self.flows: list[VehicleFlow] = []
         gap, speed = self.span("source_dist_interval"), self.num("flow_speed")
         for k, (a, b) in enumerate(self.pairs):
@@ -92,6 +97,18 @@ class ActorFlowScenario(Scenario):
 
     def plan(self) -> list[PlanItem]:
         return [path("flow", flow.path.xy) for flow in self.flows]
+
+    def _abreast(self, p: LanePoint) -> list[LanePoint]:
+        """The points abreast ``p`` on every driving lane of its road (its edge), ``p`` first."""
+        m = self.map
+        edge = np.flatnonzero((m.lane_edge == m.lane_edge[p.lane]) & (m.lane_kind == LaneKind.DRIVING))
+        xy = point_xy(m, p)[None]
+        out = [p]
+        for lane in edge.tolist():
+            if lane != p.lane:
+                s, _ = m.index.project(xy, np.array([lane]))
+                out.append(LanePoint(lane, float(s[0])))
+        return out
 
     def _pairs(self, source: LanePoint, sink: LanePoint) -> list[tuple[LanePoint, LanePoint]]:
         """Same-direction lanes of the source and sink roads, aligned on the given lanes."""
@@ -166,10 +183,13 @@ class HighwayExit(ActorFlowScenario):
 
 
 class MergerIntoSlowTraffic(ActorFlowScenario):
-    """#18: merge from the ramp into a slow flow."""
+    """#18: merge from the ramp into a slow flow; the source lane leaves background traffic; the end is
+    CAV 0 within 2 m of any lane of the road at the sink (or past that point)."""
 
     type_name = "MergerIntoSlowTraffic"
     clear_junction = True
+    remove_source_lane = True
+    sink_road = True
 
 
 class MergerIntoSlowTrafficV2(MergerIntoSlowTraffic):

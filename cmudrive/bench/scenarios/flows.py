@@ -8,8 +8,11 @@ or has left the network; :meth:`VehicleFlow.stop` removes them all.
 Two behaviours (``imposed``):
 
 * ``ActorFlow`` (imposed): every car keeps the flow speed [m/s] set by ``setSpeed``, ignores red lights
-  and right of way, never changes lanes. Unlike CARLA's (which ignore vehicles until a first collision),
-  SUMO's safe-speed check stays on, so a flow car never drives through a car or CAV ahead of it.
+  and right of way, never changes lanes, and, as upstream's, ignores the vehicles ahead (SUMO's safe-speed
+  bit off): it does not brake for a CAV that forces its way in or stands in its lane, it hits it. After
+  the first collision of one of the flow's cars (``World.collisions``, with anything), every car of the
+  flow, present and future, falls back to SUMO's car-following, as upstream's fall back to normal
+  driving after their first collision.
 * ``OppositeFlow`` (not imposed): SUMO's own car-following, lights and right of way, capped at the flow
   speed, no lane changes: the oncoming traffic of the *TwoWays scenarios.
 """
@@ -74,6 +77,7 @@ class VehicleFlow:
         self.sink_xy = point_xy(road_map, sink)
         self.cars: list[str] = []
         self.born: dict[str, int] = {}  # car -> world step count when it was added
+        self.collided = False  # one of its cars hit something: the flow follows cars from then on
         self.spawned = 0
         self.gap = self._draw()
 
@@ -92,6 +96,11 @@ class VehicleFlow:
         import libsumo
 
         sumo = self.world.sumo
+        if self.imposed and not self.collided and self._hit_something():
+            self.collided = True
+            for car in self.cars:  # the speed stays as it is (the car that hit something is held)
+                if car in sumo.actors:
+                    self._control(car, set_speed=False)
         rows = {str(a): i for i, a in enumerate(snap.ids.tolist()) if str(a).startswith(self.name)}
         # a car SUMO discarded at insertion (it could not depart, e.g. too fast before a red line) is neither
         # running nor pending, and never reported as arrived: drop it, or the flow would wait for it forever
@@ -155,9 +164,7 @@ class VehicleFlow:
             depart_pos=pos, depart_lane=int(self.map.lane_index[at.lane]), depart_speed=speed,
         )  # fmt: skip
         if self.imposed:
-            sumo.override(
-                car, ignore_lights=True, ignore_right_of_way=True, speed=self.speed, lane_changes=False
-            )
+            self._control(car)
             import libsumo
 
             libsumo.vehicle.setSpeedFactor(
@@ -174,6 +181,27 @@ class VehicleFlow:
         self.cars.append(car)
         self.born[car] = self.world.step_count
         self.gap = self._draw()
+
+    def _hit_something(self) -> bool:
+        """One of this flow's cars is in a collision of the last tick."""
+        ev = self.world.collisions
+        if not len(ev):
+            return False
+        prefix = f"{self.name}:"
+        ids = np.concatenate([ev.id_a, ev.id_b]).astype(str)
+        return bool(np.any(np.char.startswith(ids, prefix)))
+
+    def _control(self, car: str, set_speed: bool = True) -> None:
+        """An ActorFlow car: the flow speed, red lights and right of way ignored, no lane changes, and the
+        vehicles ahead ignored until the flow's first collision."""
+        self.world.sumo.override(
+            car,
+            ignore_lights=True,
+            ignore_right_of_way=True,
+            ignore_vehicles=not self.collided,
+            speed=self.speed if set_speed else None,
+            lane_changes=False,
+        )
 
     def stop(self) -> None:
         for car in self.cars:
