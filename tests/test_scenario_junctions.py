@@ -288,3 +288,36 @@ def test_the_forced_green_is_the_whole_approach_held_until_the_scenario_ends(
         assert {state[i] for i in ours} == {"G"}, (k, state)
         assert {c for i, c in enumerate(state) if i not in set(ours.tolist())} == {"r"}, (k, state)
     assert log.num_ticks - first > round(20.0 / 0.05)  # held for more than 20 s
+
+
+def test_blocked_intersection_freezes_the_other_entries_until_it_ends(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Upstream's Junction{stopEntries}: from activation to the scenario's end, background traffic on
+    every entry of the junction that CAV 0's route does not take is halted (here: the three lanes of the
+    two other roads into downtown's J0_1), then released."""
+    from cmudrive.sim.background import BackgroundActivity
+
+    calls: list[tuple[str, list[int], float]] = []
+    for name in ("stop_lane", "release_lane"):
+        original = getattr(BackgroundActivity, name)
+
+        def spy(self: BackgroundActivity, lanes, _name=name, _original=original):  # type: ignore[no-untyped-def]
+            calls.append((_name, sorted(int(x) for x in lanes), self._need_world().time))
+            return _original(self, lanes)
+
+        monkeypatch.setattr(BackgroundActivity, name, spy)
+    seen = ends(monkeypatch)
+    m = load_map("downtown")
+    spec = through(m, "BlockedIntersection", A, RIGHT, 80.0)
+    run(spec, tmp_path)
+    route = spec.dense_routes(m)[0]
+    junction = int(m.lane_junction[route.lane[np.flatnonzero(route.in_junction)[0]]])
+    via = m.link_via
+    into = (via >= 0) & (m.lane_junction[np.maximum(via, 0)] == junction)
+    into &= (m.lane_kind[m.link_from] == 0) & ~m.lane_internal[m.link_from]  # driving lanes into it
+    entries = sorted(set(m.link_from[into].tolist()) - set(route.path.tolist()))
+    assert len({m.lane_edge[e] for e in entries}) == 2 and len(entries) == 3  # the two other roads
+    end, _, act = seen[0]
+    assert [(c[0], c[1]) for c in calls] == [("stop_lane", entries), ("release_lane", entries)]
+    assert calls[0][2] == pytest.approx(act, abs=0.06) and calls[1][2] == pytest.approx(end, abs=0.06)

@@ -44,7 +44,8 @@ def layout(kind: str, w: float) -> list[tuple[str, float, float]]:
     return [("board", 35.0, 0.0), *cones]
 
 
-END_PAST_T = {"Accident": 106.0, "ParkedObstacle": 90.0, "ConstructionObstacle": 98.0}  # [m] E past T
+# [m] E past T: fwd(50) past car B, past the parked car, and past C (not the last cone: C + 8 m)
+END_PAST_T = {"Accident": 106.0, "ParkedObstacle": 90.0, "ConstructionObstacle": 90.0}
 
 
 def scenario_collisions(result: RouteResult, cav: int) -> list[str]:
@@ -289,3 +290,32 @@ def test_invading_turn_ends_with_cav_0_whatever_the_others_do(tmp_path: Path) ->
     assert last * 0.05 < 20.0 and log.num_ticks > last + 200  # long before the route's end (40 s)
     assert cav_track(log, 1)[-1, 3] < 0.1  # CAV 1 stood all along
     assert all(len(c.infractions["scenario_timeouts"]) == 0 for c in result.cavs)
+
+
+def test_the_door_opening_halts_the_traffic_behind_until_the_end(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """VehicleOpensDoorTwoWays (downtown): upstream's StopBack freezes the background traffic behind the
+    ego when the door opens and StartBack releases it at the end: CAV 0's lane is halted from the tick the
+    door appears to the scenario's end."""
+    from cmudrive.sim.background import BackgroundActivity
+
+    calls: list[tuple[str, list[int], float]] = []
+    for name in ("stop_lane", "release_lane"):
+        original = getattr(BackgroundActivity, name)
+
+        def spy(self: BackgroundActivity, lanes, _name=name, _original=original):  # type: ignore[no-untyped-def]
+            calls.append((_name, [int(x) for x in lanes], self._need_world().time))
+            return _original(self, lanes)
+
+        monkeypatch.setattr(BackgroundActivity, name, spy)
+    m = load_map("downtown")
+    lane = "J0_0-J0_1_2"
+    sc = ScenarioSpec("S1", "VehicleOpensDoorTwoWays", trigger(m, lane, 20.0), {"distance": "40"})
+    spec = RouteSpec("door_back", "downtown", "ClearNoon", 0, (lane_cav(m, 0, lane, 5.0, 135.0),), (sc,))
+    _, log = run(spec, tmp_path)
+    door = track(log, "S1:door")
+    present = np.flatnonzero(~np.isnan(door[:, 0]))
+    assert [(c[0], c[1]) for c in calls] == [("stop_lane", [m.lane(lane)]), ("release_lane", [m.lane(lane)])]
+    assert calls[0][2] == pytest.approx((present[0] + 1) * 0.05, abs=0.06)  # as the door opens
+    assert calls[1][2] == pytest.approx((present[-1] + 1) * 0.05, abs=0.11)  # released at the end

@@ -129,6 +129,8 @@ class OppositeVehicle(Scenario):
         sumo = self.world.sumo
         if self.background is not None:
             self.background.clear_junction(self.junction)
+        if not self.red_light:  # upstream: stopEntries for OppositeVehicleTakingPriority only
+            self.stop_entries(self.junction)
         half = 0.5 * ACTOR_TYPES[EV_TYPE].length
         sumo.add_vehicle(
             self.ev_id, EV_TYPE, self.edges, int(Role.SCENARIO),

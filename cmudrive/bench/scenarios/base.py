@@ -41,6 +41,7 @@ from cmudrive.bench.scenarios.params import Param, ScenarioError, parse_params
 from cmudrive.bench.scenarios.placement import LanePoint, heading, point_xy, walk
 from cmudrive.bench.scenarios.plan import PlanItem, point
 from cmudrive.maps import RoadMap, Route
+from cmudrive.maps.model import LaneKind
 from cmudrive.sim.background_commands import BackgroundCommands
 from cmudrive.sim.dynamics import Controls
 from cmudrive.sim.snapshot import Role, Snapshot
@@ -144,6 +145,7 @@ class Scenario:
         self.activated_at = math.nan  # [s] world time of activation
         self.ended_by_timeout = False
         self.actors: list[str] = []  # layer actors this scenario spawned (removed at the end)
+        self.halted_lanes: list[int] = []  # background halted on these lanes until the end (stop_lane)
         self.place()
 
     # ------------------------------------------------------------------ hooks for subclasses
@@ -269,6 +271,22 @@ class Scenario:
             self.actors.remove(actor_id)
             self.world.remove_layer_actor(actor_id)
 
+    def stop_entries(self, junction: int) -> None:
+        """``Junction{stopEntries}``: background vehicles on the entries of ``junction`` that CAV 0's route
+        does not take halt (and any that arrive there later) until the scenario ends."""
+        if junction < 0:
+            return
+        m, via = self.map, self.map.link_via
+        into = (via >= 0) & (m.lane_junction[np.maximum(via, 0)] == junction) & ~m.lane_internal[m.link_from]
+        into &= m.lane_kind[m.link_from] == LaneKind.DRIVING
+        self.halt_lanes(sorted({int(x) for x in m.link_from[into]} - self.route_lanes))
+
+    def halt_lanes(self, lanes: list[int]) -> None:
+        """Background vehicles on ``lanes`` halt (and any that drive onto them) until the scenario ends."""
+        if self.background is not None:
+            self.halted_lanes += lanes
+            self.background.stop_lane(lanes)
+
     def ego_running(self) -> bool:
         """CAV 0's evaluation is still running (it has not finished, failed or been blocked)."""
         return not bool(self.criteria.finished()[EGO])
@@ -315,6 +333,8 @@ class Scenario:
         self.phase = Phase.ENDED
         if was_active:
             self.on_end()
+            if self.halted_lanes and self.background is not None:
+                self.background.release_lane(self.halted_lanes)
             self._suspend_blocked(False)
         for actor_id in list(self.actors):
             self.despawn(actor_id)

@@ -109,6 +109,7 @@ class CrossingBicycleFlow(Scenario):
     def on_activate(self, snap: Snapshot) -> None:
         if self.background is not None:
             self.background.clear_junction(self.junction)
+        self.stop_entries(self.junction)
         self.flow.prefill()
         self.light_phase = -1
 

@@ -196,6 +196,7 @@ class BlockedIntersection(Scenario):
     def on_activate(self, snap: Snapshot) -> None:
         if self.background is not None and self.junction >= 0:
             self.background.clear_junction(self.junction)
+        self.stop_entries(self.junction)
         self.spawn("blocker", "car", self.xy, heading(self.map, self.at))
 
     def on_update(self, snap: Snapshot, progress: RouteProgress) -> bool:

@@ -103,9 +103,7 @@ class LaneObstacle(Scenario):
                 f"has no same-direction driving lane on its {pass_side} to pass the obstacle through"
             )
         self.items = self.layout()
-        last = self.items[-1].at
-        self.end_point = LanePoint(last.lane, last.s)
-        self.end_point = self.fwd(last, END_MARGIN, "end point")
+        self.end_point = self.fwd(self.anchor(), END_MARGIN, "end point")
         self.end_xy = point_xy(self.map, self.end_point)
         self.end_heading = heading(self.map, self.end_point)
         self.first_xy = point_xy(self.map, self.items[0].at, self.items[0].offset)
@@ -114,6 +112,11 @@ class LaneObstacle(Scenario):
         self.close_at = np.nan  # [s] when CAV 0 first came within close_distance
         self.capped = False
         self.flow: VehicleFlow | None = None
+
+    def anchor(self) -> LanePoint:
+        """The lane point the end (fwd(50) past it) and the OppositeFlow are measured from: the last
+        obstacle (the reference's car B, the parked car, the door's car)."""
+        return self.items[-1].at
 
     def shift(self, fraction: float) -> float:
         """Lateral offset [m] of ``fraction`` lane widths toward ``direction``."""
@@ -189,7 +192,7 @@ class LaneObstacle(Scenario):
 
     def oncoming_ends(self) -> tuple[LanePoint, LanePoint, float]:
         """The OppositeFlow's source and sink, and its speed [m/s]."""
-        m, last = self.map, self.items[-1].at
+        m, last = self.map, self.anchor()
         opposite = int(m.lane_opposite[last.lane])
         s, _ = m.index.project(point_xy(m, last)[None], np.array([opposite]))
         ref = LanePoint(opposite, float(s[0]))
@@ -277,7 +280,7 @@ class ConstructionObstacle(LaneObstacle):
 
     def layout(self) -> list[Item]:
         d = self.num("distance")
-        c = self.fwd(self.t_wp, d, "construction site")
+        c = self.c = self.fwd(self.t_wp, d, "construction site")
         board = self.fwd(self.t_wp, d - 5.0, "arrow board")
         w, side = width(self.map, self.t_wp), side_sign(self.direction)
         items = [Item("board", "warning_sign", board, 0.0, prop=True)]
@@ -294,7 +297,10 @@ class ConstructionObstacle(LaneObstacle):
         super().on_activate(snap)
 
     def close_point(self) -> np.ndarray:  # the reference waits for C, 5 m past the arrow board
-        return point_xy(self.map, self.items[1].at, 0.0)
+        return point_xy(self.map, self.c)
+
+    def anchor(self) -> LanePoint:  # the reference's end and oncoming flow are measured from C
+        return self.c
 
     def on_end(self) -> None:
         super().on_end()
@@ -456,4 +462,5 @@ class VehicleOpensDoorTwoWays(LaneObstacle):
         yaw = h + np.pi - toward * self.DOOR_ANGLE  # swung open backwards, out into the lane
         centre = hinge + 0.5 * ACTOR_TYPES["car_door"].length * np.array([np.cos(yaw), np.sin(yaw)])
         self.spawn("door", "car_door", centre, yaw, prop=True)
+        self.halt_lanes([self.t_wp.lane])  # StopBack: the background behind CAV 0 waits until the end
         return True

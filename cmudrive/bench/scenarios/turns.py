@@ -129,6 +129,8 @@ class JunctionTurnFlow(Scenario):
             background.clear_junction(self.junction)
             if self.side == "opposite":
                 background.opposite_traffic(False)
+        if not self.signalized:  # upstream: stopEntries for the non-signalized turns only
+            self.stop_entries(self.junction)
         if self.prefill and self.flow is not None:
             self.flow.prefill()
         self.light_phase = -1
