@@ -225,3 +225,34 @@ def test_a_merge_ends_at_any_lane_of_the_road_at_the_sink(town: str) -> None:
     h = sc.sink_heading[0]
     along = (sc.sinks - dst) @ np.array([np.cos(h), np.sin(h)])
     assert np.abs(along).max() < 0.5
+
+
+def test_a_flow_source_inside_a_junction_starts_where_its_lane_leaves_it() -> None:
+    """Bench2Drive's route 26394 (Town06, MergerIntoSlowTrafficV2) puts start_actor_flow 14 m into a
+    junction's internal lane as SUMO draws it (CARLA's junction areas are smaller, and CARLA can spawn
+    there; SUMO cannot): the flow starts at the beginning of the road that lane leads onto and drives on
+    to the sink, instead of the route being refused."""
+    from cmudrive.bench import CavSpec
+    from cmudrive.bench.route_check import build_placed
+
+    m = load_map("Town06")
+    xs = [554.7, 552.7, 550.7, 548.6, 546.6, 544.6, 542.6, 540.6, 538.6, 536.6, 534.6, 532.6]
+    xs2 = [444.8, 440.8, 436.8, 432.8, 428.8, 424.8, 420.8, 418.8]
+    pts = [(x, -24.3, 0.0) for x in xs] + [(x, -10.5, 0.0) for x in xs2]  # CARLA frame, CAV 0's waypoints
+    sc = scenario(
+        "MergerIntoSlowTrafficV2",
+        (550.7, -24.3, 0.0, -179.6),
+        start_actor_flow={"x": "495.7", "y": "36.5", "z": "0"},
+        end_actor_flow={"x": "424.8", "y": "-10.5", "z": "0"},
+        flow_speed="10",
+        source_dist_interval={"from": "14", "to": "30"},
+    )
+    spec = RouteSpec("26394", "Town06", "ClearNoon", 0, (CavSpec(0, np.array(pts)),), (sc,))
+    (placed,) = build_placed(spec, m, spec.dense_routes(m))
+    source = placed.flows[0].source
+    assert not m.lane_internal[source.lane] and source.s == 0.0
+    given = np.array([495.7, -36.5])  # the map frame's y is CARLA's, negated
+    path = placed.flows[0].path
+    assert np.min(np.linalg.norm(path.xy - given, axis=1)) > 5.0  # it starts past the given point ...
+    start_xy = path.xy[0]
+    assert np.linalg.norm(start_xy - given) < 10.0  # ... a few metres on, where the junction lane ends

@@ -66,9 +66,24 @@ class ActorFlowScenario(Scenario):
         proj = self.map.index.nearest_lane(xy[None], max_distance=SNAP)
         if proj.lane[0] < 0:
             raise self.error(f"parameter {name!r}: no driving lane within {SNAP:g} m of it")
-        if self.map.lane_internal[proj.lane[0]]:
-            raise self.error(f"parameter {name!r}: it lies inside a junction; flows start and end on roads")
-        return LanePoint(int(proj.lane[0]), float(proj.s[0]))
+        lane = int(proj.lane[0])
+        if self.map.lane_internal[lane]:
+            return self.out_of_junction(name, lane)
+        return LanePoint(lane, float(proj.s[0]))
+
+    def out_of_junction(self, name: str, lane: int) -> LanePoint:
+        """A flow end inside a junction (CARLA's junction areas are smaller than SUMO's, and CARLA can spawn
+        there; SUMO cannot insert a car on a junction's internal lane): the start of the road its internal
+        lane leads onto, so the flow drives the same path from there."""
+        m = self.map
+        for _ in range(8):  # internal lanes chain through a junction in a few pieces
+            after = [int(x) for x in m.successors(lane) if m.lane_kind[x] == LaneKind.DRIVING]
+            if not after:
+                break
+            lane = after[0]
+            if not m.lane_internal[lane]:
+                return LanePoint(lane, 0.0)
+        raise self.error(f"parameter {name!r}: it lies inside a junction whose lane leads onto no road")
 
     def place(self) -> None:
         source, sink = self.locate("start_actor_flow"), self.locate("end_actor_flow")
