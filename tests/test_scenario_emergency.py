@@ -13,6 +13,7 @@ import pytest
 
 from cmudrive.bench import RouteSpec
 from cmudrive.maps import load_map
+from cmudrive.sim.actor_types import ACTOR_TYPES
 from tests.scenario_helpers import cav_track, frenet, lane_cav, path_cav, run, scenario, track, trigger
 
 LANES = {"interurban": ("R1a-R2a_0", "R1a-R2a_1"), "Town04": ("-45_2", "-45_3")}
@@ -59,3 +60,12 @@ def test_a_cav_that_moves_over_is_passed_and_not_charged(tmp_path: Path) -> None
     s_cav, _ = frenet(m, "R1a-R2a_0", cav[last, :2])
     assert s_ev[0] > s_cav[0] + 10.0  # it went past
     assert np.nanmax(ev[:, 3]) > cav[last, 3] + 8.0  # faster than CAV 0 by far
+    # upstream's WaitUntilInFront: "ahead" once its centre is past the point one CAV and one ambulance
+    # half-length in front of CAV 0 (within 10 m of it); the scenario ends (it is removed) 50 m later
+    half = 0.5 * (ACTOR_TYPES["cav"].length + ACTOR_TYPES["ambulance"].length)
+    fwd = np.column_stack([np.cos(cav[:, 2]), np.sin(cav[:, 2])])
+    ref = cav[:, :2] + half * fwd
+    ahead = (np.einsum("ij,ij->i", ev[:, :2] - ref, fwd) > 0) & (np.linalg.norm(ev[:, :2] - ref, axis=1) < 10)
+    k = int(np.flatnonzero(ahead)[0])
+    driven = np.sum(np.linalg.norm(np.diff(ev[k : last + 1, :2], axis=0), axis=1))
+    assert driven == pytest.approx(50.0, abs=3.0)

@@ -7,8 +7,9 @@ lights, and is told every tick to drive at CAV 0's speed + 25 m/s (90 km/h, the 
 as-coded number; its type caps it at 36 m/s). SUMO's car-following keeps it from ramming a vehicle ahead
 in its lane: it matches a blocking CAV's speed, as the reference's detection does.
 
-End: the vehicle came within 50 m of CAV 0 and 10 s passed, or it got ahead of CAV 0 within 10 m and then
-drove 50 m. At the end CAV 0, the scenario's ego, is judged if it is still running
+End: the vehicle came within 50 m of CAV 0 and 10 s passed, or it got ahead of CAV 0 (its centre past the
+point one CAV and one vehicle half-length in front of CAV 0, within 10 m of that point: upstream's
+WaitUntilInFront) and then drove 50 m. At the end CAV 0, the scenario's ego, is judged if it is still running
 (``record_yield_to_emergency_vehicle``): ahead of the vehicle's centre along its heading = failed to yield
 (x0.7). Other CAVs ahead of the vehicle are not charged (upstream's test is the ego's). No scenario timeout.
 """
@@ -60,6 +61,7 @@ class YieldToEmergencyVehicle(Scenario):
                 f"behind the trigger point, {d:g} m needed"
             )
         self.ev_id = f"{self.spec.name}:ev"
+        self.half_lengths = 0.5 * (ACTOR_TYPES["cav"].length + ACTOR_TYPES[EV_TYPE].length)  # [m]
         self.near_at = math.nan  # [s] when the vehicle first came within NEAR of CAV 0
         self.passed_at = math.nan  # [m] the vehicle's driven distance when it first got ahead of CAV 0
 
@@ -114,8 +116,12 @@ class YieldToEmergencyVehicle(Scenario):
         gap = float(np.linalg.norm(progress.xy[EGO] - ev_xy))
         if math.isnan(self.near_at) and gap < NEAR:
             self.near_at = self.time
-        ev_ahead = not bool(ahead_of(progress.xy[EGO : EGO + 1], ev_xy, ev_yaw)[0])
-        if math.isnan(self.passed_at) and ev_ahead and gap < PASS_NEAR:
+        # upstream's WaitUntilInFront: ahead of the point one CAV + one vehicle half-length in front of CAV
+        # 0 (along its heading), and within PASS_NEAR of that point
+        yaw = float(progress.yaw[EGO])
+        ref = progress.xy[EGO] + self.half_lengths * np.array([math.cos(yaw), math.sin(yaw)])
+        ev_ahead = bool(ahead_of(ev_xy[None], ref, yaw)[0])
+        if math.isnan(self.passed_at) and ev_ahead and float(np.linalg.norm(ev_xy - ref)) < PASS_NEAR:
             self.passed_at = self._driven()
         if not math.isnan(self.passed_at) and self._driven() - self.passed_at >= PASS_DRIVE:
             return True
