@@ -7,7 +7,9 @@ loops from back-and-forth waypoints). Scenario trigger points must lie within ``
 (the scenarios' activation distance, the one number the evaluator uses too) of CAV 0's route, and every
 scenario must place on the map as the evaluator builds it (parameters parsed and in range, every actor's
 place found: ``place_scenarios``; the scenario classes need no running world for that). One bad route
-does not hide the others: each gets its own line.
+does not hide the others: each gets its own line. A route that can run is then held to the placement
+rules of ``route_rules`` (room after the trigger, CAVs clear of the scenario's actors, ...): a broken rule
+is reported by route and rule, and the route still runs.
 
 ``cmudrive eval`` runs the same checks on every route before the first one starts (:func:`route_problems`,
 ``runner.run_evaluation``): a map is loaded once per town and dropped after that town's routes, so the
@@ -24,13 +26,17 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from cmudrive.bench.route_rules import RuleViolation, rule_violations
 from cmudrive.bench.route_spec import TRIGGER_TOLERANCE
 from cmudrive.bench.routes import RouteSpec, read_routes
 from cmudrive.maps import MapError, RoadMap, Route, RouteError, load_map
+
+if TYPE_CHECKING:
+    from cmudrive.bench.scenarios.base import Scenario
 
 
 @dataclass(frozen=True)
@@ -39,6 +45,7 @@ class RouteCheck:
     problem: str | None  # None: the route can run
     num_cavs: int = 0
     lengths: tuple[float, ...] = ()  # [m] each CAV's dense route
+    rules: tuple[RuleViolation, ...] = ()  # placement rules it breaks (it still runs: ``route_rules``)
 
 
 def check_route(spec: RouteSpec, maps: dict[Path, RoadMap]) -> RouteCheck:
@@ -59,10 +66,14 @@ def check_route(spec: RouteSpec, maps: dict[Path, RoadMap]) -> RouteCheck:
                 f"route (at most {TRIGGER_TOLERANCE:g} m)",
                 len(spec.cavs),
             )
-    problem = place_scenarios(spec, maps[path], routes)
-    if problem is not None:
-        return RouteCheck(spec.id, problem, len(spec.cavs))
-    return RouteCheck(spec.id, None, len(spec.cavs), tuple(r.length for r in routes))
+    from cmudrive.bench.scenarios.params import ScenarioError
+
+    try:
+        placed = build_placed(spec, maps[path], routes)
+    except ScenarioError as exc:
+        return RouteCheck(spec.id, str(exc), len(spec.cavs))
+    rules = tuple(rule_violations(routes, placed))
+    return RouteCheck(spec.id, None, len(spec.cavs), tuple(r.length for r in routes), rules)
 
 
 def place_scenarios(spec: RouteSpec, road_map: RoadMap, routes: list[Route]) -> str | None:
@@ -77,7 +88,7 @@ def place_scenarios(spec: RouteSpec, road_map: RoadMap, routes: list[Route]) -> 
     return None
 
 
-def build_placed(spec: RouteSpec, road_map: RoadMap, routes: list[Route]) -> list[object]:
+def build_placed(spec: RouteSpec, road_map: RoadMap, routes: list[Route]) -> list[Scenario]:
     """The route's scenarios with behaviour here, placed on the map: each class built as the evaluator
     builds it, without a world (placement reads only the map and the CAV routes; the world is used from
     instantiation on). Raises ``ScenarioError`` naming the problem. Types without behaviour yet have

@@ -177,10 +177,21 @@ def routes_check(
         if c.problem is None:
             lengths = ", ".join(f"{v:.0f}" for v in c.lengths)
             console.print(f"[green]ok[/]    {escape(c.route_id)}: {c.num_cavs} CAVs, {lengths} m")
+            for v in c.rules:
+                line = f"[yellow]rule[/]  {escape(c.route_id)}: {v.rule}: {escape(v.message)}"
+                console.print(line, highlight=False)
         else:
             bad += 1
             console.print(f"[red]error[/] {escape(c.route_id)}: {escape(c.problem)}", highlight=False)
     console.print(f"{len(checks) - bad} of {len(checks)} routes can run")
+    ruled = [c for c in checks if c.rules]
+    if ruled:
+        counts: dict[str, int] = {}
+        for c in ruled:
+            for name in {v.rule for v in c.rules}:
+                counts[name] = counts.get(name, 0) + 1
+        per_rule = ", ".join(f"{name} {n}" for name, n in sorted(counts.items()))
+        console.print(f"{len(ruled)} of them break a placement rule ({per_rule}; docs/route_format.md)")
     if bad:
         raise typer.Exit(code=1)
 
