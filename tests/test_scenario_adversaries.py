@@ -5,13 +5,17 @@ others red meanwhile."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from cmudrive.bench import RouteSpec
+from cmudrive.agents import PidAgent
+from cmudrive.bench import EvalConfig, RouteSpec, evaluate_route
+from cmudrive.bench.route_log import load_route_log
 from cmudrive.maps import RoadMap, load_map
+from cmudrive.sim.background import BackgroundConfig
 from tests.scenario_helpers import cav_track, path_cav, run, scenario, track, trigger
 
 SCENES = [
@@ -94,3 +98,21 @@ def test_red_light_runner_needs_a_signalised_junction() -> None:
         plan_scenarios(spec, m, spec.dense_routes(m))
     spec = route(m, "OppositeVehicleTakingPriority", a, b, "right")
     assert plan_scenarios(spec, m, spec.dense_routes(m)).scenarios
+
+
+def test_the_adversary_starts_among_background_traffic(tmp_path: Path) -> None:
+    """OppositeVehicleTakingPriority among default background traffic (downtown, seed 3): its entry is
+    emptied of background cars at activation (upstream's rmEntries) while the junction's other entries are
+    halted (stopEntries), so nothing stands where it starts: it is inserted, drives through and the route
+    runs to its end. (cmudrive220's OppositeVehicleTakingPriority_1 crashed when a halted background car
+    sat on its start and SUMO dropped it.)"""
+    m = load_map("downtown")
+    spec = dataclasses.replace(
+        route(m, "OppositeVehicleTakingPriority", "J1_2-J0_2_2", "J0_2-J0_1_2", "right"), seed=3
+    )
+    config = EvalConfig(background=BackgroundConfig(), record_dir=tmp_path)
+    result = evaluate_route(spec, PidAgent, config)
+    assert result.error is None, result.error
+    log = load_route_log(sorted(tmp_path.glob("*.npz"))[-1])
+    ev = track(log, "S1:ev")
+    assert np.nanmax(ev[:, 3]) > 15.0  # it drove through at 60 km/h

@@ -96,6 +96,13 @@ class OppositeVehicle(Scenario):
             )
         except RouteError as exc:
             raise self.error(f"no place for the adversary: {exc}") from None
+        # the adversary's entry: its lanes up to the junction (upstream's rmEntries=[adversary lane])
+        entry = []
+        for x in path.path:
+            if m.lane_internal[x]:
+                break
+            entry.append(int(x))
+        self.entry_lanes = entry
         names = [str(m.edge_ids[m.lane_edge[x]]) for x in path.path if not m.lane_internal[x]]
         self.edges = [e for i, e in enumerate(names) if i == 0 or e != names[i - 1]]
         self.sink_xy = point_xy(m, sink)
@@ -129,6 +136,7 @@ class OppositeVehicle(Scenario):
         sumo = self.world.sumo
         if self.background is not None:
             self.background.clear_junction(self.junction)
+            self.background.remove_lane(self.entry_lanes)  # nothing may stand where the vehicle starts
         if not self.red_light:  # upstream: stopEntries for OppositeVehicleTakingPriority only
             self.stop_entries(self.junction)
         half = 0.5 * ACTOR_TYPES[EV_TYPE].length
@@ -137,6 +145,7 @@ class OppositeVehicle(Scenario):
             depart_pos=min(self.start.s + half, float(self.map.lane_length[self.start.lane]) - 0.1),
             depart_lane=int(self.map.lane_index[self.start.lane]), depart_speed=0.0,
         )  # fmt: skip
+        self.added_at = self.world.step_count
         sumo.override(self.ev_id, ignore_lights=True, ignore_right_of_way=True, speed=0.0, lane_changes=False)
         libsumo.vehicle.setSpeedMode(self.ev_id, 0)  # ignores vehicles too: it will not brake for the CAV
         if self.red_light:
@@ -148,7 +157,7 @@ class OppositeVehicle(Scenario):
         sumo = self.world.sumo
         if not self.gone:
             row = np.flatnonzero(snap.ids == self.ev_id)
-            if math.isnan(self.fired_at):
+            if math.isnan(self.fired_at) and len(row):  # (in the world: SUMO inserted it)
                 if time_to_arrival(progress, self.collision_point, 2.2, 12.0):
                     self.fired_at = self.time
                     libsumo.vehicle.setSpeed(self.ev_id, SPEED)
@@ -156,7 +165,10 @@ class OppositeVehicle(Scenario):
                 len(row) and np.hypot(*(np.array([snap.x[row[0]], snap.y[row[0]]]) - self.sink_xy)) < 2.0
             )
             timed = not math.isnan(self.fired_at) and self.time - self.fired_at > self.max_time
-            if at_sink or timed or self.ev_id not in sumo.actors:
+            known = set(libsumo.vehicle.getIDList()) | set(libsumo.simulation.getPendingVehicles())
+            stepped = self.world.step_count > self.added_at  # SUMO has tried to insert it
+            dropped = stepped and self.ev_id not in known  # and gave up (its start stayed occupied)
+            if at_sink or timed or dropped or self.ev_id not in sumo.actors:
                 sumo.remove(self.ev_id)
                 self.gone = True
         self.passed |= self.ego_driven(progress) >= self.goal
@@ -164,6 +176,8 @@ class OppositeVehicle(Scenario):
 
     def on_end(self) -> None:
         self.world.sumo.remove(self.ev_id)
+        if self.background is not None:
+            self.background.readd_lane(self.entry_lanes)
         if self.red_light:
             self.world.lights.release()
 
