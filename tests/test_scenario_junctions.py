@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from cmudrive.agents import Observations, PidAgent
+from cmudrive.agents.autopilot import AutopilotAgent
 from cmudrive.bench import EvalConfig, RouteSpec
 from cmudrive.bench.criteria import CriteriaConfig
 from cmudrive.bench.scenarios import ScenarioConfig
@@ -321,3 +322,46 @@ def test_blocked_intersection_freezes_the_other_entries_until_it_ends(
     end, _, act = seen[0]
     assert [(c[0], c[1]) for c in calls] == [("stop_lane", entries), ("release_lane", entries)]
     assert calls[0][2] == pytest.approx(act, abs=0.06) and calls[1][2] == pytest.approx(end, abs=0.06)
+
+
+class Cav0StopsAfterTrigger(AutopilotAgent):
+    """The autopilot (it stops at red lights), but CAV 0 brakes to a standstill from 4 s on: it has passed
+    T and stands short of the junction."""
+
+    def run_step(self, obs: Observations) -> Controls:
+        c = super().run_step(obs)
+        stop = (obs.cav_index == 0) & (obs.time >= 4.0)
+        return Controls(
+            np.where(stop, 0.0, c.steer), np.where(stop, 0.0, c.throttle), np.where(stop, 1.0, c.brake)
+        )
+
+
+def test_a_cav_held_at_the_scenarios_forced_red_is_not_blocked(tmp_path: Path) -> None:
+    """SignalizedJunctionLeftTurn at downtown's J0_1 (CAV 0 from J0_2, the flow from J0_0): CAV 0 stops
+    after the trigger and never turns, so the scenario holds the third approach (from J1_1) red until the
+    route ends (30 s). CAV 1 on that approach waits at the red through no fault of its own: its blocked
+    test (5 s here) is suspended while the scenario holds the junction."""
+    m = load_map("downtown")
+    a, b = m.lane("J0_2-J0_1_2"), m.lane("J0_1-J1_1_2")
+    xy0 = np.array(
+        [
+            m.index.frenet_to_xy(np.array([a]), np.array([40.0]))[0],
+            m.index.frenet_to_xy(np.array([a]), np.array([m.lane_length[a] - 2.0]))[0],
+            m.index.frenet_to_xy(np.array([b]), np.array([40.0]))[0],
+        ]
+    )
+    c, d = m.lane("J1_1-J0_1.pocket_3"), m.lane("J0_1-J0_0_2")
+    xy1 = np.array(
+        [
+            m.index.frenet_to_xy(np.array([c]), np.array([2.0]))[0],
+            m.index.frenet_to_xy(np.array([d]), np.array([60.0]))[0],
+        ]
+    )
+    sc = scenario("SignalizedJunctionLeftTurn", trigger(m, "J0_2-J0_1_2", 55.0), flow_speed="10")
+    spec = RouteSpec("held", "downtown", "ClearNoon", 0, (path_cav(m, 0, xy0), path_cav(m, 1, xy1)), (sc,))
+    config = EvalConfig(background=EMPTY, tick_cap=600, criteria=replace(CriteriaConfig(), blocked_time=5.0))
+    result, log = run(spec, tmp_path, Cav0StopsAfterTrigger, config)
+    s1, _ = m.index.project(cav_track(log, 1)[-1:, :2], np.array([c]))
+    assert s1[0] > 20.0 and cav_track(log, 1)[-1, 3] < 0.1  # CAV 1 stands at its stop line ...
+    assert result.cavs[1].infractions["vehicle_blocked"] == []  # ... and is not blocked
+    assert result.cavs[1].infractions["red_light"] == []

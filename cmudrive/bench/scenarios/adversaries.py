@@ -150,6 +150,7 @@ class OppositeVehicle(Scenario):
         libsumo.vehicle.setSpeedMode(self.ev_id, 0)  # ignores vehicles too: it will not brake for the CAV
         if self.red_light:
             self.world.lights.force_lanes(approach_lanes(self.map, self.ego_lane), "G", others="r")
+            self.hold_at(self.junction)
 
     def on_update(self, snap: Snapshot, progress: RouteProgress) -> bool:
         import libsumo

@@ -146,6 +146,7 @@ class Scenario:
         self.ended_by_timeout = False
         self.actors: list[str] = []  # layer actors this scenario spawned (removed at the end)
         self.halted_lanes: list[int] = []  # background halted on these lanes until the end (stop_lane)
+        self.held = np.zeros(len(ctx.routes), bool)  # CAVs the scenario may hold at its junction
         self.place()
 
     # ------------------------------------------------------------------ hooks for subclasses
@@ -280,6 +281,17 @@ class Scenario:
         into = (via >= 0) & (m.lane_junction[np.maximum(via, 0)] == junction) & ~m.lane_internal[m.link_from]
         into &= m.lane_kind[m.link_from] == LaneKind.DRIVING
         self.halt_lanes(sorted({int(x) for x in m.link_from[into]} - self.route_lanes))
+        self.hold_at(junction)
+
+    def hold_at(self, junction: int) -> None:
+        """This scenario holds traffic at ``junction`` until it ends (forced reds, halted entries): a CAV
+        whose route passes through it may wait there as long as CAV 0 needs the junction, through no fault
+        of its own, so its blocked test is suspended until the scenario ends (upstream, with one ego,
+        nobody else waits there). CAV 0's own test follows the scenario's timeout rule."""
+        for i, r in enumerate(self.ctx.routes):
+            if i != EGO and not self.held[i] and bool(np.any(self.map.lane_junction[r.lane] == junction)):
+                self.held[i] = True
+                self.criteria.suspend_blocked(i, True)
 
     def halt_lanes(self, lanes: list[int]) -> None:
         """Background vehicles on ``lanes`` halt (and any that drive onto them) until the scenario ends."""
@@ -335,6 +347,8 @@ class Scenario:
             self.on_end()
             if self.halted_lanes and self.background is not None:
                 self.background.release_lane(self.halted_lanes)
+            for i in np.flatnonzero(self.held).tolist():
+                self.criteria.suspend_blocked(i, False)
             self._suspend_blocked(False)
         for actor_id in list(self.actors):
             self.despawn(actor_id)

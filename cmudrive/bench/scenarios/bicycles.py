@@ -109,7 +109,7 @@ class CrossingBicycleFlow(Scenario):
     def on_activate(self, snap: Snapshot) -> None:
         if self.background is not None:
             self.background.clear_junction(self.junction)
-        self.stop_entries(self.junction)
+        self.stop_entries(self.junction)  # (and holds the CAVs through the junction: forced lights too)
         self.flow.prefill()
         self.light_phase = -1
 

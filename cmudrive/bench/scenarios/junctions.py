@@ -131,7 +131,9 @@ class SignalizedTurn(RouteRule):
     def place(self) -> None:
         super().place()
         before, _, _ = self.junction_exit()
-        self.approach = int(self.ctx.routes[0].lane[before])
+        route = self.ctx.routes[0]
+        self.approach = int(route.lane[before])
+        self.junction = int(self.map.lane_junction[route.lane[before + 1]])
         m = self.map
         if not np.any((m.link_from == self.approach) & (m.link_tls >= 0)):
             raise self.error(
@@ -144,6 +146,7 @@ class SignalizedTurn(RouteRule):
 
     def on_activate(self, snap: Snapshot) -> None:
         self.phase_index = -1
+        self.hold_at(self.junction)  # its forced reds
 
     def on_update(self, snap: Snapshot, progress: RouteProgress) -> bool:
         elapsed = self.time - self.activated_at

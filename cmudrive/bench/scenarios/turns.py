@@ -131,6 +131,8 @@ class JunctionTurnFlow(Scenario):
                 background.opposite_traffic(False)
         if not self.signalized:  # upstream: stopEntries for the non-signalized turns only
             self.stop_entries(self.junction)
+        else:
+            self.hold_at(self.junction)  # its forced reds
         if self.prefill and self.flow is not None:
             self.flow.prefill()
         self.light_phase = -1
