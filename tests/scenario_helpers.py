@@ -102,10 +102,14 @@ class StopsSome(PidAgent):
     observations: ClassVar[frozenset[Observation]] = PidAgent.observations
 
     def run_step(self, obs: Observations) -> Controls:
-        c = super().run_step(obs)
-        stop = np.array([obs.time >= self.STOP_AT.get(int(i), np.inf) for i in obs.cav_index], bool)
-        steer, throttle = np.where(stop, 0.0, c.steer), np.where(stop, 0.0, c.throttle)
-        return Controls(steer, throttle, np.where(stop, 1.0, c.brake))
+        return stop_cavs(super().run_step(obs), obs, self.STOP_AT)
+
+
+def stop_cavs(c: Controls, obs: Observations, stop_at: dict[int, float]) -> Controls:
+    """``c`` with full brake for each CAV of ``stop_at`` from its time [s] on."""
+    stop = np.array([obs.time >= stop_at.get(int(i), np.inf) for i in obs.cav_index], bool)
+    steer, throttle = np.where(stop, 0.0, c.steer), np.where(stop, 0.0, c.throttle)
+    return Controls(steer, throttle, np.where(stop, 1.0, c.brake))
 
 
 def interurban() -> RoadMap:

@@ -29,6 +29,7 @@ from tests.scenario_helpers import (
     path_cav,
     run,
     scenario,
+    stop_cavs,
     track,
     trigger,
 )
@@ -329,11 +330,7 @@ class Cav0StopsAfterTrigger(AutopilotAgent):
     T and stands short of the junction."""
 
     def run_step(self, obs: Observations) -> Controls:
-        c = super().run_step(obs)
-        stop = (obs.cav_index == 0) & (obs.time >= 4.0)
-        return Controls(
-            np.where(stop, 0.0, c.steer), np.where(stop, 0.0, c.throttle), np.where(stop, 1.0, c.brake)
-        )
+        return stop_cavs(super().run_step(obs), obs, {0: 4.0})
 
 
 def test_a_cav_held_at_the_scenarios_forced_red_is_not_blocked(tmp_path: Path) -> None:
