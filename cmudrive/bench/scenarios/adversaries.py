@@ -166,9 +166,10 @@ class OppositeVehicle(Scenario):
                 len(row) and np.hypot(*(np.array([snap.x[row[0]], snap.y[row[0]]]) - self.sink_xy)) < 2.0
             )
             timed = not math.isnan(self.fired_at) and self.time - self.fired_at > self.max_time
-            known = set(libsumo.vehicle.getIDList()) | set(libsumo.simulation.getPendingVehicles())
-            stepped = self.world.step_count > self.added_at  # SUMO has tried to insert it
-            dropped = stepped and self.ev_id not in known  # and gave up (its start stayed occupied)
+            dropped = False  # SUMO tried to insert it and gave up (its start stayed occupied)
+            if not len(row) and self.world.step_count > self.added_at:
+                known = set(libsumo.vehicle.getIDList()) | set(libsumo.simulation.getPendingVehicles())
+                dropped = self.ev_id not in known
             if at_sink or timed or dropped or self.ev_id not in sumo.actors:
                 sumo.remove(self.ev_id)
                 self.gone = True
