@@ -106,12 +106,14 @@ def _short_of_end(sc: Scenario, ego: Route) -> str | None:
 def _starts_against_actors(sc: Scenario, routes: list[Route]) -> list[RuleViolation]:
     """A violation per CAV whose box at its start comes within CLEARANCE of a placed actor's box."""
     from cmudrive.bench.scenarios.parking import ParkingExit
+    from cmudrive.bench.scenarios.placement import point_xy
     from cmudrive.sim.actor_types import ACTOR_TYPES
     from cmudrive.sim.collisions import pair_penetration
 
     points = [p for p in sc.plan() if isinstance(p, PlanPoint) and p.kind in ACTOR_TYPES]
-    if isinstance(sc, ParkingExit):  # the car drawn at T is the one beside the slot CAV 0 starts in
-        points = [p for p in points if p.kind != "car" or not np.allclose(p.xy, routes[0].xy[0])]
+    if isinstance(sc, ParkingExit):  # the car drawn at T drives off from beside CAV 0's slot
+        at_t = point_xy(sc.map, sc.t_wp)
+        points = [p for p in points if p.kind != "car" or not np.allclose(p.xy, at_t)]
     if not points:
         return []
     cav = ACTOR_TYPES["cav"]
