@@ -48,7 +48,9 @@ class RouteCheck:
     rules: tuple[RuleViolation, ...] = ()  # placement rules it breaks (it still runs: ``route_rules``)
 
 
-def check_route(spec: RouteSpec, maps: dict[Path, RoadMap]) -> RouteCheck:
+def check_route(spec: RouteSpec, maps: dict[Path, RoadMap], rules: bool = True) -> RouteCheck:
+    """Whether the route can run; with ``rules``, also the placement rules it breaks (``route_rules``:
+    ``routes check`` reports them, ``eval`` does not need them)."""
     try:
         path = spec.town_path()
         if path not in maps:
@@ -72,8 +74,8 @@ def check_route(spec: RouteSpec, maps: dict[Path, RoadMap]) -> RouteCheck:
         placed = build_placed(spec, maps[path], routes)
     except ScenarioError as exc:
         return RouteCheck(spec.id, str(exc), len(spec.cavs))
-    rules = tuple(rule_violations(routes, placed))
-    return RouteCheck(spec.id, None, len(spec.cavs), tuple(r.length for r in routes), rules)
+    broken = tuple(rule_violations(routes, placed)) if rules else ()
+    return RouteCheck(spec.id, None, len(spec.cavs), tuple(r.length for r in routes), broken)
 
 
 def place_scenarios(spec: RouteSpec, road_map: RoadMap, routes: list[Route]) -> str | None:
@@ -113,7 +115,7 @@ def route_problems(specs: Sequence[RouteSpec]) -> dict[str, str]:
             maps.clear()
             town = (spec.town, spec.town_dirs)
         try:
-            problem = check_route(spec, maps).problem
+            problem = check_route(spec, maps, rules=False).problem
         except Exception as exc:  # a file no reader foresaw: the route cannot run, the run goes on checking
             problem = f"cannot be checked: {type(exc).__name__}: {exc}"
         if problem is not None:
