@@ -168,6 +168,23 @@ def test_cones_use_the_construction_ramp() -> None:
     assert 0.0 < offset[rising].min() and offset[rising].max() < 3.5
 
 
+def test_cones_beside_the_path_widen_the_shift() -> None:
+    """ConstructionObstacleTwoWays on a two-way road: the board at the lane centre and the cones across
+    the lane ask for a shift that would run the CAV into the line of cones along the lane's left edge
+    (no obstacle to the unshifted path): the shift grows to clear those too."""
+    scene = Scene(*TWO_WAY)
+    prop = dict(kind=ActorKind.PROP, role=Role.PROP)
+    board = Actor(CAV_S + 30.0, 0.0, length=0.5, width=1.2, **prop)  # type: ignore[arg-type]
+    side = [Actor(CAV_S + 37.0 + 2.0 * k, 1.6, length=0.4, width=0.4, **prop) for k in range(4)]  # type: ignore[arg-type]
+    across = [Actor(CAV_S + 43.0, 0.6 - k, length=0.4, width=0.4, **prop) for k in range(3)]  # type: ignore[arg-type]
+    _, s, out = scene.run([board, *side, *across], ticks=(0.0,))
+    assert out.reason[0] == DetourReason.ONCOMING_LANE
+    assert plateau(out.offset[0]) == pytest.approx(1.6 + 0.2 + 1.05 + 0.6, abs=0.05)  # not 0.8 + 1.65
+    assert set(range(2, 6)) <= set(out.actors[0].tolist())
+    beside = (s > CAV_S + 37.0 - 0.2) & (s < CAV_S + 43.0 + 0.2)
+    assert np.all(out.offset[0][beside] - 1.05 >= 1.6 + 0.2 + 0.6 - 0.01)  # 0.6 m clear of every cone
+
+
 # ------------------------------------------------------------------ what is not an obstacle
 def test_a_queued_car_is_not_an_obstacle() -> None:
     """A scenario car standing off-centre close behind a moving car (a queue), or standing at the lane
@@ -214,6 +231,48 @@ def test_no_room_no_shift() -> None:
 
 
 # ------------------------------------------------------------------ two-way road: the oncoming lane
+class RouteScene(Scene):
+    """A scene whose arc length ``s`` is the distance along a route that may cross junctions."""
+
+    def __init__(self, town: str, route: Route) -> None:
+        self.map = load_map(town)
+        self.route = route
+        self.lane = int(route.lane[0])
+        self.width = float(self.map.lane_width[self.lane])
+
+    def pose(self, s: float, d: float = 0.0) -> tuple[np.ndarray, float]:
+        r = self.route
+        h = float(np.interp(s, r.distance, np.unwrap(r.heading)))
+        xy = np.array([np.interp(s, r.distance, r.xy[:, 0]), np.interp(s, r.distance, r.xy[:, 1])])
+        return xy + d * np.array([-np.sin(h), np.cos(h)]), h
+
+
+def test_a_late_shift_ramps_from_the_junction_exit() -> None:
+    """Cyclists that stopped just past a junction (HazardAtSideLaneTwoWays, bicycles parked after their
+    50 m): a CAV standing inside the junction, where its lane has no neighbour, shifts from the junction's
+    exit onward instead of giving up (it was BLOCKED there for good)."""
+    m = load_map(TWO_WAY[0])
+    lane = m.lane(TWO_WAY[1])
+    end = float(m.lane_length[lane])
+    h = float(m.index.heading_at(np.array([lane]), np.array([end]))[0])
+    exit_xy = m.index.frenet_to_xy(np.array([lane]), np.array([end]))[0] + 60.0 * np.array(
+        [np.cos(h), np.sin(h)]
+    )
+    route = RoutePlanner(m).plan(m.index.frenet_to_xy(np.array([lane]), np.array([5.0]))[0], exit_xy)
+    inside = np.flatnonzero(route.in_junction)
+    exit_s = float(route.distance[inside[-1] + 1])
+    scene = RouteScene(TWO_WAY[0], route)
+    w = scene.width
+    bike = dict(kind=ActorKind.BICYCLE, length=1.8, width=0.65)
+    bikes = [Actor(exit_s + 4.0 + a, -0.275 * w, **bike) for a in (0.0, 9.0)]  # type: ignore[arg-type]
+    cav_s = exit_s - 3.0  # in the junction, its front 1.8 m from the first bicycle's rear
+    _, s, out = scene.run(bikes, cav_s=cav_s)
+    assert out.reason[0] == DetourReason.ONCOMING_LANE
+    offset = out.offset[0][: len(s)]  # (the route ends within the horizon)
+    assert np.all(offset[s < exit_s - 0.01] == 0.0)  # nothing inside the junction
+    assert plateau(offset) == pytest.approx(-0.275 * w + 0.325 + 1.05 + 0.6, abs=0.05)
+
+
 def test_two_ways_waits_for_the_oncoming_car_then_passes() -> None:
     """ParkedObstacleTwoWays: an oncoming car 40 m away at 10 m/s keeps the CAV waiting, straight in its
     lane, at the start of the ramp; without it the CAV passes through the oncoming lane, just far enough."""

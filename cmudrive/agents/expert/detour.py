@@ -19,7 +19,9 @@ obstacle            within ``look_ahead`` m ahead and reaching into the CAV's co
                     route's next junction entry, or a slow scenario bicycle riding the CAV's way. The path
                     moves just enough to pass with ``margin`` (to the lane centre when it would squeeze a
                     same-direction neighbour lane's traffic, ``full_lane_change``), on the side away from the
-                    obstacle where the road has room, with ``transition`` m ramps (10.5 m around cones);
+                    obstacle where the road has room, with ``transition`` m ramps (10.5 m around cones),
+                    and wider where it would bring the CAV onto a prop beside the unshifted path (cones
+                    along the lane edge: they join the obstacle);
                     a shift into traffic waits (at the start of its ramp, path unshifted) until that
                     lane is clear (oncoming: clear over the pass with ``clear_margin`` and
                     +``clear_extra_time``, at the vehicles' speeds; same direction: nothing
@@ -35,7 +37,9 @@ emergency vehicle   a siren in the CAV's lane behind it (YieldToEmergencyVehicle
 The path never leaves the paved road: the shifted CAV keeps ``edge_margin`` inside the outer edge of its
 lane plus the neighbour lane it borrows (same direction, else oncoming); where that is too narrow for an
 obstacle there is no shift and the CAV is reported ``BLOCKED`` (the caller waits behind the obstacle).
-Nothing is shifted inside junctions (internal lanes have no neighbours).
+Nothing is shifted inside junctions (internal lanes have no neighbours): a CAV that finds an obstacle
+late while inside a junction (cyclists stopped just past its exit) ramps from the first point whose road
+has room.
 
 A shift is a :class:`~cmudrive.agents.expert.detour_path.Segment` in route distance: ramp up from s0 to
 p0, plateau to p1, ramp down to s1 (cosine profile). Segments of one side that overlap merge; a segment
@@ -50,7 +54,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from cmudrive.agents.expert.detour_config import Borrow, DetourConfig, DetourReason
-from cmudrive.agents.expert.detour_detect import Ego, Egos, Pairs, invaders, obstacles, sirens
+from cmudrive.agents.expert.detour_detect import (
+    PAIR_FIELDS,
+    Ego,
+    Egos,
+    Pairs,
+    invaders,
+    obstacles,
+    props_ahead,
+    sirens,
+)
 from cmudrive.agents.expert.detour_gap import busy_traffic
 from cmudrive.agents.expert.detour_path import RouteLanes, Segment, fit, merge
 from cmudrive.maps import RoadMap, Route
@@ -104,6 +117,7 @@ class DetourPlanner:
             s_ego[pairs.cav], 0.5 * snap.length[cav_rows][pairs.cav], 0.5 * snap.width[cav_rows][pairs.cav]
         )
         obstacle = obstacles(snap, pairs, ego, cfg, self._standing_since)
+        beside = props_ahead(snap, pairs, ego, cfg) & ~obstacle
         invading = invaders(snap, pairs, ego, cfg)
         siren = sirens(snap, pairs, ego, cfg)
         offset = np.zeros((n, h))
@@ -119,7 +133,7 @@ class DetourPlanner:
         for c in np.flatnonzero(todo).tolist():
             i, mine = int(cav_index[c]), pairs.cav == c
             p = pairs.subset(mine)
-            masks = (obstacle[mine], invading[mine], siren[mine])
+            masks = (obstacle[mine], invading[mine], siren[mine], beside[mine])
             plan = self._plan_cav(snap, p, masks, int(cav_rows[c]), i, int(k_ego[c]), float(s_ego[c]))
             s_pts = self.lanes.dist[i, k_ego[c] : k_ego[c] + h]
             left, right = np.zeros(h), np.zeros(h)
@@ -153,14 +167,14 @@ class DetourPlanner:
         self,
         snap: Snapshot,
         p: Pairs,
-        masks: tuple[np.ndarray, np.ndarray, np.ndarray],
+        masks: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
         me: int,
         i: int,
         k_ego: int,
         s_ego: float,
     ) -> _Plan:
         """Fresh segments + held ones, merged; gap checks for those that enter a traffic lane."""
-        obstacle, invading, siren = masks
+        obstacle, invading, siren, beside = masks
         ego = Ego(s_ego, 0.5 * float(snap.length[me]), 0.5 * float(snap.width[me]))
         v_e = max(float(snap.speed[me]), 0.0)
         fresh: list[Segment] = []
@@ -168,7 +182,9 @@ class DetourPlanner:
         for held in self.held[i]:  # held rows refer to an older snapshot: find their actors again
             held.rows = np.flatnonzero(np.isin(snap.ids, held.ids)).astype(np.int64)
         if obstacle.any():
-            fresh_obstacles, blocked = self._obstacle_segments(snap, p.subset(obstacle), i, ego)
+            fresh_obstacles, blocked = self._obstacle_segments(
+                snap, p.subset(obstacle), p.subset(beside), i, ego
+            )
             fresh += fresh_obstacles
         if invading.any():
             fresh += self._invading_segment(p.subset(invading), i, ego)
@@ -202,10 +218,14 @@ class DetourPlanner:
         busy_rows = np.unique(np.concatenate(busy or [_NO_ROWS]))
         return _Plan(keep, reason, rows, stop_s, busy_rows)
 
-    def _obstacle_segments(self, snap: Snapshot, p: Pairs, i: int, ego: Ego) -> tuple[list[Segment], bool]:
-        """One segment per group of obstacles whose shifts overlap; True when a group cannot be passed."""
+    def _obstacle_segments(
+        self, snap: Snapshot, p: Pairs, beside: Pairs, i: int, ego: Ego
+    ) -> tuple[list[Segment], bool]:
+        """One segment per group of obstacles whose shifts overlap; True when a group cannot be passed.
+        ``beside``: props off the unshifted path; one that a group's shift would bring the CAV onto
+        joins that group (and the shift is fitted again, at most ``_WIDEN`` times)."""
         cfg = self.cfg
-        cone = (snap.kind[p.row] == ActorKind.PROP) & (snap.length[p.row] < 0.6) & (snap.width[p.row] < 0.6)
+        n_obstacles = len(p.row)
         groups: list[list[int]] = []
         for a in np.argsort(p.s).tolist():
             if groups and p.s[a] - p.half_lon[a] - max(p.s[b] + p.half_lon[b] for b in groups[-1]) < (
@@ -214,35 +234,84 @@ class DetourPlanner:
                 groups[-1].append(a)
             else:
                 groups.append([a])
+        p = _concat(p, beside)  # rows past n_obstacles: the props beside the path
+        cone = (snap.kind[p.row] == ActorKind.PROP) & (snap.length[p.row] < 0.6) & (snap.width[p.row] < 0.6)
         out: list[Segment] = []
         blocked = False
         for g in groups:
             ga = np.array(g)
-            trans = cfg.transition_construction if cone[ga].any() else cfg.transition
-            p0 = float(np.min(p.s[ga] - p.half_lon[ga])) - ego.half_len - cfg.buffer
-            p1 = float(np.max(p.s[ga] + p.half_lon[ga])) + ego.half_len + cfg.buffer
-            s0 = p0 - trans
-            stop_at = s0 - cfg.stop_before_start
-            if s0 < ego.s:  # found late, or the CAV waited at the ramp: ramp from where the CAV is
-                s0, p0 = ego.s, max(p0, ego.s + cfg.min_transition)
-            need_left = float(np.max(p.d[ga] + p.half_lat[ga])) + ego.half_width + cfg.margin
-            need_right = float(np.min(p.d[ga] - p.half_lat[ga])) - ego.half_width - cfg.margin
-            first_left = float(np.mean(p.d[ga])) <= 0.0
-            seg = None
-            for left in (first_left, not first_left):
-                amp = need_left if left else need_right
-                if (amp > 0.0) == left:  # else no shift is needed that way
-                    seg = fit(
-                        self.lanes, i, Segment(s0, p0, p1, p1 + trans, amp, DetourReason.OBSTACLE), ego, cfg
-                    )
-                if seg is not None:
+            seg = self._group_segment(p, ga, cone, i, ego)
+            for _ in range(_WIDEN):
+                if seg is None:
                     break
+                extra = np.arange(n_obstacles, len(p.row))
+                extra = extra[~np.isin(extra, ga)]
+                near = p.s[extra] - p.half_lon[extra] < seg.s1
+                near &= p.s[extra] + p.half_lon[extra] > seg.s0
+                path_d = seg.at(p.s[extra])
+                near &= np.abs(p.d[extra] - path_d) < p.half_lat[extra] + ego.half_width + cfg.block_margin
+                if not near.any():
+                    break
+                ga = np.concatenate([ga, extra[near]])
+                seg = self._group_segment(p, ga, cone, i, ego)
             if seg is None:
                 blocked = True
                 continue
-            seg.rows, seg.stop_at = p.row[ga], stop_at
             out.append(seg)
         return out, blocked
+
+    def _group_segment(self, p: Pairs, ga: np.ndarray, cone: np.ndarray, i: int, ego: Ego) -> Segment | None:
+        """The shift around the obstacles ``ga`` (indices into ``p``), None when the road has no room."""
+        cfg = self.cfg
+        trans = cfg.transition_construction if cone[ga].any() else cfg.transition
+        p0 = float(np.min(p.s[ga] - p.half_lon[ga])) - ego.half_len - cfg.buffer
+        p1 = float(np.max(p.s[ga] + p.half_lon[ga])) + ego.half_len + cfg.buffer
+        s0 = p0 - trans
+        stop_at = s0 - cfg.stop_before_start
+        late = s0 < ego.s
+        if late:  # found late, or the CAV waited at the ramp: ramp from where the CAV is
+            s0, p0 = ego.s, max(p0, ego.s + cfg.min_transition)
+        need_left = float(np.max(p.d[ga] + p.half_lat[ga])) + ego.half_width + cfg.margin
+        need_right = float(np.min(p.d[ga] - p.half_lat[ga])) - ego.half_width - cfg.margin
+        first_left = float(np.mean(p.d[ga])) <= 0.0
+        seg = None
+        for left in (first_left, not first_left):
+            amp = need_left if left else need_right
+            if (amp > 0.0) == left:  # else no shift is needed that way
+                seg = fit(
+                    self.lanes, i, Segment(s0, p0, p1, p1 + trans, amp, DetourReason.OBSTACLE), ego, cfg
+                )
+                if seg is None and late:  # the CAV stands where the road has no room (a junction exit)
+                    start = self._room_from(i, s0, p1, amp, ego)
+                    if start is not None:
+                        q0 = max(p0, start + cfg.min_transition)
+                        q1 = max(p1, q0)
+                        seg = fit(
+                            self.lanes,
+                            i,
+                            Segment(start, q0, q1, q1 + trans, amp, DetourReason.OBSTACLE),
+                            ego,
+                            cfg,
+                        )
+            if seg is not None:
+                break
+        if seg is not None:
+            seg.rows, seg.stop_at = p.row[ga], stop_at
+        return seg
+
+    def _room_from(self, i: int, s0: float, p1: float, amp: float, ego: Ego) -> float | None:
+        """[m] the first route distance in [s0, p1) from which the road is wide enough for a shift of
+        ``amp`` up to ``p1`` (None: nowhere): a late shift whose ramp would start inside a junction, where
+        the route's lane has no neighbour, ramps from the junction's exit instead."""
+        lo, hi = np.searchsorted(self.lanes.dist[i], [s0, p1])
+        if hi <= lo:
+            return None
+        edge = (self.lanes.edge_left if amp > 0.0 else self.lanes.edge_right)[i, lo:hi]
+        ok = edge - ego.half_width - self.cfg.edge_margin >= abs(amp)
+        if not ok[-1]:
+            return None
+        bad = np.flatnonzero(~ok)
+        return float(self.lanes.dist[i, lo + (bad[-1] + 1 if len(bad) else 0)])
 
     def _invading_segment(self, p: Pairs, i: int, ego: Ego) -> list[Segment]:
         """Right, within the CAV's lane and a parking lane or shoulder, away from the invading vehicles."""
@@ -293,3 +362,8 @@ class _Plan:
 
 
 _NO_ROWS = np.zeros(0, np.int64)
+_WIDEN = 3  # a shift is widened for props beside the path at most this many times
+
+
+def _concat(a: Pairs, b: Pairs) -> Pairs:
+    return Pairs(*(np.concatenate([getattr(a, f), getattr(b, f)]) for f in PAIR_FIELDS))

@@ -79,6 +79,15 @@ def obstacles(
     return (static | parked | bike) & ahead & inside
 
 
+def props_ahead(snap: Snapshot, p: Pairs, ego: Egos, cfg: DetourConfig) -> np.ndarray:
+    """(k,) bool: a static prop ahead within ``look_ahead``, wherever it stands across the road. Those
+    beside the CAV's path are no obstacle until a shift moves the path onto them (a line of cones along
+    the lane edge, a sign on the shoulder): the planner widens a shift that would hit one."""
+    static = (snap.kind[p.row] == ActorKind.PROP) | (snap.role[p.row] == Role.PROP)
+    ahead = (p.s + p.half_lon > ego.s - ego.half_len) & (p.s - p.half_lon - ego.s < cfg.look_ahead)
+    return static & ahead
+
+
 def _queued(snap: Snapshot, p: Pairs, cand: np.ndarray, cfg: DetourConfig) -> np.ndarray:
     """(k,) bool: a moving vehicle is in front of the candidate within ``queue_gap``, in its band."""
     moving = (np.abs(snap.speed[p.row]) > cfg.moving_speed) & (snap.kind[p.row] != ActorKind.PEDESTRIAN)
