@@ -228,6 +228,22 @@ def test_stop_lane_halts_and_release_lane_lets_go(town: tuple[str | Path, RoadMa
         assert snap.speed[snap.index_of("halt2")] > 1.0  # the front car drives on
 
 
+def test_stop_back_halts_only_what_is_behind_the_point(town: tuple[str | Path, RoadMap]) -> None:
+    """StopBack (``before``): of three cars 20 m apart at 8 m/s, the two behind the point halt; the one
+    ahead of it drives on (VehicleOpensDoorTwoWays once halted the car ahead of CAV 0 at the junction,
+    and CAV 0 waited behind it until time-out)."""
+    with standing_world(town, BackgroundConfig(vehicles=0, pedestrians=0)) as (world, bg):
+        lane = cav_lanes(world.map)[1]
+        s0 = CAV0_S + 15.0
+        for i in range(3):
+            add_background_car(world, f"halt{i}", lane, s0 + 20.0 * i, speed=8.0)
+        run(world, 6)
+        assert bg.stop_lane([lane], before=s0 + 35.0) == 2
+        snap = run(world, 80)
+        assert snap.speed[snap.index_of("halt0")] < 0.1 and snap.speed[snap.index_of("halt1")] < 0.1
+        assert snap.speed[snap.index_of("halt2")] > 5.0
+
+
 def test_clear_junction_and_opposite_traffic_off(town: tuple[str | Path, RoadMap]) -> None:
     cfg = BackgroundConfig(vehicles=60)
     with standing_world(town, cfg) as (world, bg):

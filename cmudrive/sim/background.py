@@ -184,7 +184,7 @@ class BackgroundActivity(CommandsMixin):
         self._deadlocked_since: dict[str, float] = {}  # [s] background actor id -> since when it blocks
         self._type_of: dict[str, str] = {}  # our vehicles' type names
         self._stopped_since: dict[str, float] = {}  # vehicle -> time it was first seen stopped [s]
-        self._stopped_lanes: set[int] = set()
+        self._stopped_lanes: dict[int, float] = {}  # lane -> halt what is behind this arc length [m]
         self._halted: dict[str, int] = {}  # vehicle -> stopped lane that halted it
         self._opposite = True
         self._speed_cap: float | None = None

@@ -12,7 +12,7 @@ method                                      Bench2Drive
 ==========================================  =========================================================
 ``leave_space(cav, d)``                     ``LeaveSpace`` (we delete the cars; B2D moves them ahead)
 ``remove_lane(lanes)``/``readd_lane``       ``RemoveLane`` / ``ReAddLane``
-``stop_lane(lanes)``/``release_lane``       ``StopFront``/``StartFront``, ``StopBack``/``StartBack`` (by lane)
+``stop_lane(lanes, before)``/``release``   ``StopFront``/``StartFront``, ``StopBack``/``StartBack`` (by lane)
 ``opposite_traffic(enabled)``               ``OppOff`` / ``OppOn``
 ``clear_junction(j, approach)``             ``Junction{clear}`` (interior and entries of a junction)
 ``max_speed(v)``                            ``MaxSpeed`` (B2D takes km/h; we take m/s)
@@ -46,7 +46,7 @@ class BackgroundCommands(Protocol):
     def leave_space(self, cav_index: int, distance: float) -> int: ...
     def remove_lane(self, lanes: Iterable[int]) -> int: ...
     def readd_lane(self, lanes: Iterable[int]) -> None: ...
-    def stop_lane(self, lanes: Iterable[int]) -> int: ...
+    def stop_lane(self, lanes: Iterable[int], before: float = np.inf) -> int: ...
     def release_lane(self, lanes: Iterable[int]) -> int: ...
     def opposite_traffic(self, enabled: bool) -> int: ...
     def clear_junction(self, junction_index: int, approach: float = 30.0) -> int: ...
@@ -57,7 +57,7 @@ class _Keeper(Protocol):
     """What the commands use of the density keeper: its command state and its removal."""
 
     _lane_removed: np.ndarray  # (lanes,) bool: no spawns on these map lanes
-    _stopped_lanes: set[int]  # map lanes whose background vehicles are halted
+    _stopped_lanes: dict[int, float]  # map lane -> arc length [m] before which its background halts
     _halted: dict[str, int]  # vehicle -> the stopped lane that halted it
     _opposite: bool  # oncoming traffic on (False: OppOff)
     _speed_cap: float | None  # [m/s] MaxSpeed, None: each type's own
@@ -84,6 +84,14 @@ class CommandsMixin:
 
         rows = live_vehicles(scene)
         on = rows[np.isin(scene.lane[rows], list(self._stopped_lanes))]
+        limit = np.array([self._stopped_lanes[int(ln)] for ln in scene.lane[on].tolist()])
+        part = np.isfinite(limit)
+        if part.any():  # StopBack: only what is behind the point (and what was halted before)
+            s, _ = self._need_world().map.index.project(scene.xy[on[part]], scene.lane[on[part]])
+            keep = np.array([scene.ids[r] in self._halted for r in on.tolist()], bool)
+            keep[~part] = True
+            keep[np.flatnonzero(part)[s < limit[part]]] = True
+            on = on[keep]
         for r in on.tolist():
             actor_id = scene.ids[r]
             if actor_id not in self._halted:
@@ -136,14 +144,17 @@ class CommandsMixin:
         self._need_world()
         self._lane_removed[[int(ln) for ln in lanes]] = False
 
-    def stop_lane(self: _Keeper, lanes: Iterable[int]) -> int:
+    def stop_lane(self: _Keeper, lanes: Iterable[int], before: float = np.inf) -> int:
         """Bench2Drive ``StopFront``/``StopBack``: background vehicles on these lanes (now, and any that
-        drive onto them later) brake to a halt (``setSpeed(0)``) until :meth:`release_lane`."""
+        drive onto them later) brake to a halt (``setSpeed(0)``) until :meth:`release_lane`; with
+        ``before`` [m of lane arc length] only those whose centre is behind it (StopBack: the vehicles
+        behind the ego; those ahead of it drive on). A vehicle once halted stays halted."""
         _, scene, _ = self._command_scene()
-        before = len(self._halted)
-        self._stopped_lanes.update(int(ln) for ln in lanes)
+        count = len(self._halted)
+        for ln in lanes:
+            self._stopped_lanes[int(ln)] = float(before)
         self._halt_on_stopped_lanes(scene)
-        return len(self._halted) - before
+        return len(self._halted) - count
 
     def release_lane(self: _Keeper, lanes: Iterable[int]) -> int:
         """Bench2Drive ``StartFront``/``StartBack``: vehicles halted on these lanes drive on again."""
@@ -151,7 +162,8 @@ class CommandsMixin:
 
         world = self._need_world()
         released = {int(ln) for ln in lanes}
-        self._stopped_lanes -= released
+        for ln in released:
+            self._stopped_lanes.pop(ln, None)
         go = [a for a, ln in self._halted.items() if ln in released]
         for actor_id in go:
             del self._halted[actor_id]

@@ -293,11 +293,12 @@ class Scenario:
                 self.held[i] = True
                 self.criteria.suspend_blocked(i, True)
 
-    def halt_lanes(self, lanes: list[int]) -> None:
-        """Background vehicles on ``lanes`` halt (and any that drive onto them) until the scenario ends."""
+    def halt_lanes(self, lanes: list[int], before: float = np.inf) -> None:
+        """Background vehicles on ``lanes`` halt (and any that drive onto them) until the scenario ends;
+        with ``before`` [m of lane arc length], only those behind that point (StopBack)."""
         if self.background is not None:
             self.halted_lanes += lanes
-            self.background.stop_lane(lanes)
+            self.background.stop_lane(lanes, before)
 
     def ego_running(self) -> bool:
         """CAV 0's evaluation is still running (it has not finished, failed or been blocked)."""

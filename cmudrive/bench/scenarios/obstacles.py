@@ -462,5 +462,8 @@ class VehicleOpensDoorTwoWays(LaneObstacle):
         yaw = h + np.pi - toward * self.DOOR_ANGLE  # swung open backwards, out into the lane
         centre = hinge + 0.5 * ACTOR_TYPES["car_door"].length * np.array([np.cos(yaw), np.sin(yaw)])
         self.spawn("door", "car_door", centre, yaw, prop=True)
-        self.halt_lanes([self.t_wp.lane])  # StopBack: the background behind CAV 0 waits until the end
+        # StopBack: the background behind CAV 0 on its lane waits until the end (what is ahead drives on)
+        lane = self.t_wp.lane
+        s_ego, _ = self.map.index.project(progress.xy[EGO : EGO + 1], np.array([lane]))
+        self.halt_lanes([lane], float(s_ego[0]))
         return True
