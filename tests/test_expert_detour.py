@@ -324,6 +324,32 @@ def test_once_out_of_its_lane_the_shift_is_kept() -> None:
     assert not out.offset.any() and not planner.held[0]
 
 
+def test_past_the_obstacle_an_oncoming_car_ahead_cuts_the_way_back_short() -> None:
+    """AccidentTwoWays: a flow car spawned ahead after the CAV pulled out stops facing it in the oncoming
+    lane. Once the CAV's rear is past the parked car it returns to its lane within 4 m (not the 8 m ramp
+    that ends where the oncoming car stands); without the oncoming car the ramp keeps its 8 m."""
+    scene = Scene(*TWO_WAY)
+    w = scene.width
+    car = Actor(CAV_S + 30.0, -0.35 * w)
+    ramp_start = car.s - 2.25 - 2.445 - 1.0 - 8.0
+    p1 = car.s + 2.25 + 2.445 + 1.0  # the plateau ends here (CAV centre; its rear 1 m past the car)
+    here = p1 - 0.5
+
+    def drive_to(s_end: float) -> DetourPlanner:
+        planner, _, _ = scene.run([car], cav_s=CAV_S)
+        for k, s in enumerate(np.arange(ramp_start - 1.0, s_end + 0.01, 0.5)):
+            scene.run([car], ticks=(2.0 + 0.05 * k,), cav_s=float(s), planner=planner)
+        return planner
+
+    facing = Actor(here + 2.445 + 6.0 + 2.25, w, 0.0, yaw=np.pi)  # standing, 6 m from the CAV's front
+    _, s, out = scene.run([car, facing], ticks=(9.0,), cav_s=here, planner=drive_to(here - 0.5))
+    offset = out.offset[0]
+    assert offset[np.argmin(np.abs(s - here))] > 1.0  # still out when it starts back
+    assert np.all(offset[s >= here + 4.0 + 0.01] == 0.0)
+    _, s, out = scene.run([car], ticks=(9.0,), cav_s=here, planner=drive_to(here - 0.5))
+    assert out.offset[0][np.argmin(np.abs(s - (here + 4.0)))] > 0.5  # the full ramp: still out at +4 m
+
+
 def test_opened_door_is_passed() -> None:
     """VehicleOpensDoorTwoWays: the car in the parking lane is no obstacle; its opened door (a prop
     reaching into the lane) is."""

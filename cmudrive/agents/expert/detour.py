@@ -27,7 +27,8 @@ obstacle            within ``look_ahead`` m ahead and reaching into the CAV's co
                     +``clear_extra_time``, at the vehicles' speeds; same direction: nothing
                     approaching from behind), and once the CAV's side has left its
                     lane it is kept until past the obstacle (before that, traffic that appears, such
-                    as a flow car spawned ahead, still stops it)
+                    as a flow car spawned ahead, still stops it); an oncoming vehicle close ahead once
+                    the CAV's rear is past the obstacles cuts the way back to ``min_transition``
 invading vehicle    an oncoming vehicle over the centre line (InvadingTurn): right, within the CAV's lane
                     and a parking lane or shoulder beside it, to keep ``invading_margin``
 emergency vehicle   a siren in the CAV's lane behind it (YieldToEmergencyVehicle): into a same-direction
@@ -207,6 +208,8 @@ class DetourPlanner:
                         stop_s = seg.stop_at if stop_s is None else min(stop_s, seg.stop_at)
                     continue
             seg.committed |= s_ego >= seg.s0
+            if seg.committed and seg.borrow == Borrow.ONCOMING:
+                self._hurry_back(snap, p, seg, ego, v_e)
             keep.append(seg)
         self.held[i] = [g for g in keep if g.committed and g.s1 > s_ego]
         for g in self.held[i]:
@@ -217,6 +220,24 @@ class DetourPlanner:
             reason = DetourReason.BLOCKED
         busy_rows = np.unique(np.concatenate(busy or [_NO_ROWS]))
         return _Plan(keep, reason, rows, stop_s, busy_rows)
+
+    def _hurry_back(self, snap: Snapshot, p: Pairs, seg: Segment, ego: Ego, v_e: float) -> None:
+        """Past the obstacles in the oncoming lane with an oncoming vehicle close ahead (one that came
+        after the CAV pulled out, such as a flow car spawned ahead): back into its lane over the shortest
+        ramp (``min_transition``) from here, instead of the full ramp toward the vehicle, which stops
+        facing the CAV (the two would stand nose to nose for good)."""
+        cfg = self.cfg
+        if not seg.p1 - cfg.buffer <= ego.s <= seg.p1 + _HURRY_LATE or seg.s1 <= ego.s + cfg.min_transition:
+            return  # beside an obstacle (its rear not past them), or already on the way back
+        vehicle = ~np.isin(snap.kind[p.row], [ActorKind.PEDESTRIAN, ActorKind.PROP]) & (
+            snap.role[p.row] != Role.PROP
+        )
+        speed = np.abs(snap.speed[p.row])
+        gap = p.s - p.half_lon - (ego.s + ego.half_len)
+        near = np.maximum(cfg.hurry_distance, cfg.hurry_time * (speed + v_e))
+        side = (np.sign(p.d) == np.sign(seg.amp)) & (np.abs(p.d) > p.half_w)
+        if np.any(vehicle & (p.cos < -0.5) & side & (gap > -p.half_lon) & (gap < near)):
+            seg.p1, seg.s1 = ego.s, ego.s + cfg.min_transition
 
     def _obstacle_segments(
         self, snap: Snapshot, p: Pairs, beside: Pairs, i: int, ego: Ego
@@ -363,6 +384,7 @@ class _Plan:
 
 _NO_ROWS = np.zeros(0, np.int64)
 _WIDEN = 3  # a shift is widened for props beside the path at most this many times
+_HURRY_LATE = 2.0  # [m] past the plateau's end a CAV is on its way back: its ramp is not cut short
 
 
 def _concat(a: Pairs, b: Pairs) -> Pairs:

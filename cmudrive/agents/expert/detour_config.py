@@ -40,7 +40,9 @@ class DetourConfig:
     edge_margin: float = 0.2  # [m] the CAV's side stays this far inside the paved road's edge
     transition: float = 8.0  # [m] ramp length before and after an obstacle
     transition_construction: float = 10.5  # [m] ramp length around cones (ConstructionObstacle)
-    min_transition: float = 4.0  # [m] shortest ramp when an obstacle is found late
+    min_transition: float = 4.0  # [m] shortest ramp when an obstacle is found late (or when hurrying back)
+    hurry_distance: float = 15.0  # [m] an oncoming vehicle this close ahead of a CAV past the obstacles ...
+    hurry_time: float = 3.0  # [s] ... or closer than this at the closing speed: back over the shortest ramp
     buffer: float = 1.0  # [m] full shift from this far before the obstacle to this far past it (bumpers)
     full_lane_change: bool = True  # a shift that squeezes same-direction traffic goes to that lane's centre
     nominal_half_width: float = 0.95  # [m] half width of a vehicle assumed at a neighbour lane's centre
