@@ -10,7 +10,7 @@ import pytest
 
 from cmudrive.maps import LaneKind, LanePos, RoadMap, RoutePlanner
 from cmudrive.sim import ControlError, Controls, Role, Snapshot, World, WorldConfig
-from cmudrive.sim.traffic_lights import RED_STATES, YELLOW_TIME
+from cmudrive.sim.traffic_lights import GREEN_TIME, RED_STATES, YELLOW_TIME
 
 DT = 0.05  # [s]
 
@@ -107,6 +107,27 @@ def test_forced_lights_go_through_yellow_from_green_to_red(mini_net: Path, mini:
         seen = signals(80)
         assert seen[: yellow_ticks - 1] == ["y"] * (yellow_ticks - 1)
         assert seen[yellow_ticks + 1 :] == ["r"] * (80 - yellow_ticks - 1)
+
+
+def test_greens_last_10_s_as_carla_cycles_them(mini_net: Path, mini: RoadMap) -> None:
+    """CARLA's lights cycle 10 s green (plus yellow) per group; netconvert's programs run 31-42 s greens,
+    which leave an approach 45-80 s on red. Every green phase is capped at GREEN_TIME, and every signal
+    of every light turns green within 35 s."""
+    with make_world(mini_net, mini) as world:
+        world.add_cav(route_from(mini, "CN_1", 100.0, "CN_1", 150.0))
+        snaps = drive(world, round(35.0 / world.dt))
+        for tls in range(len(mini.tls_ids)):
+            seen = [str(s.tls_state[tls]) for s in snaps]
+            for k in range(len(seen[0])):
+                assert any(state[k] in "gGs" for state in seen), (tls, k)
+        import libsumo
+
+        for tls_id in world.lights.ids:
+            for logic in libsumo.trafficlight.getAllProgramLogics(tls_id):
+                greens = [
+                    p.duration for p in logic.phases if "y" not in p.state and set(p.state) & set("gGs")
+                ]
+                assert greens and max(greens) <= GREEN_TIME
 
 
 def test_scenario_car_runs_the_red_light_that_stops_background_traffic(mini_net: Path, mini: RoadMap) -> None:

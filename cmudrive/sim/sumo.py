@@ -9,6 +9,10 @@ SUMO settings (chosen so that SUMO never silently hides a problem):
 
 - ``--time-to-teleport -1``: SUMO never teleports a jammed vehicle. A deadlock stays visible (and shows
   in the snapshot); the background activity removes vehicles that are stuck out of the CAVs' sight.
+- ``--time-to-impatience 30``: a vehicle waiting to enter a priority road grows impatient over 30 s
+  (SUMO: 180 s) and then takes gaps that make priority traffic brake. CARLA's traffic manager has no
+  priorities at unsignalised junctions (first come, first served); with SUMO's strict priorities a side
+  road with steady cross traffic starved, and a CAV queued behind it was blocked.
 - ``--collision.action warn`` with ``--collision.check-junctions``: SUMO's own lane-based collisions
   are logged and counted (``SumoSession.sumo_collisions``), never resolved by silently removing
   vehicles. Collisions that score CAVs come from our oriented-box check, not from SUMO.
@@ -532,6 +536,8 @@ def sumo_options(
         str(int(seed)),
         "--time-to-teleport",
         "-1",
+        "--time-to-impatience",
+        "30",
         "--collision.action",
         "warn",
         "--collision.check-junctions",

@@ -22,6 +22,9 @@ NO_SIGNAL = "O"  # state reported for links without a traffic light
 RED_STATES = frozenset("ru")  # a vehicle must not pass
 GREEN_STATES = frozenset("gGs")
 YELLOW_TIME = 3.0  # [s] yellow between a forced green and red (SUMO's default yellow duration)
+# [s] longest green phase: CARLA's default light cycle (green 10 s, yellow 3 s, red 2 s per group) where
+# netconvert's programs run 31-42 s greens in 90 s cycles (reds of 45-80 s, beyond the 60 s blocked test)
+GREEN_TIME = 10.0
 
 
 class TrafficLights:
@@ -37,6 +40,32 @@ class TrafficLights:
         # tls -> (the state it goes to, per signal the time its yellow ends, inf: not yellow)
         self._target: dict[str, tuple[str, np.ndarray]] = {}
         self._release_at: dict[str, float] = {}  # tls -> when a release waiting for its yellow happens
+
+    def cap_green(self, green: float = GREEN_TIME) -> None:
+        """Shorten every green phase of every light's programs to at most ``green`` seconds (yellow and
+        all-red phases, and greens already shorter, keep their duration), CARLA's cycle: a light whose
+        approach waits through the other groups' greens shows red for about 15-40 s, not SUMO's 45-80 s.
+        Each light restarts its current phase."""
+        import libsumo
+
+        tl = libsumo.trafficlight
+        for tls in self.ids:
+            current = tl.getProgram(tls)
+            for logic in tl.getAllProgramLogics(tls):
+                if logic.programID in ("off", "online"):
+                    continue
+                phases = []
+                for ph in logic.phases:
+                    greenish = "y" not in ph.state and any(c in GREEN_STATES for c in ph.state)
+                    d = min(ph.duration, green) if greenish else ph.duration
+                    phases.append(tl.Phase(d, ph.state, d, d, ph.next, ph.name))
+                new = tl.Logic(
+                    logic.programID, logic.type, logic.currentPhaseIndex, phases, logic.subParameter
+                )
+                tl.setProgramLogic(tls, new)
+            phase = tl.getPhase(tls)
+            tl.setProgram(tls, current)
+            tl.setPhase(tls, phase)  # the running phase takes its new duration
 
     def read(self) -> np.ndarray:
         """(T,) current signal string of each light, in map order. Lights change every few seconds, so

@@ -151,6 +151,7 @@ class World:
         )
         try:
             self.lights = TrafficLights(self.map)
+            self.lights.cap_green()
         except Exception:
             self.sumo.close()
             raise
