@@ -116,6 +116,29 @@ def test_red_light_stops_the_cav_before_the_line_green_does_not(downtown: RoadMa
     assert controls.brake[0] == 0.0
 
 
+def test_a_green_light_is_not_entered_when_the_cav_would_stop_across_its_line(downtown: RoadMap) -> None:
+    """Keep the box clear: a car standing 6 m past a green light's line leaves no room for the CAV
+    (4.89 m + the red-light segment's 1 m + its 4 m gap), so the CAV stops before the line, naming that car;
+    it would otherwise stand across the line, and a red coming meanwhile is charged. With the car 15 m
+    past the line the CAV drives in; a car moving away does not hold it either."""
+    m = downtown
+    lane = str(m.lane_ids[m.stop_lane[np.flatnonzero(m.stop_kind == StopKind.TRAFFIC_LIGHT)[0]]])
+    route, line = route_through(m, lane)
+    for past, speed, holds in ((6.0, 0.0, True), (15.0, 0.0, False), (6.0, 5.0, False)):
+        k = int(np.searchsorted(route.distance, line + past + 2.25))
+        car = {"x": route.xy[k, 0], "y": route.xy[k, 1], "yaw": route.heading[k], "speed": speed}
+        agent = expert_for(m, [route])
+        _, obs = scene(route, line - 20.0, 5.0, others=[car], tls=lights_all(m, "G"))
+        agent.run_step(obs)
+        d = agent.decision
+        assert d is not None and d.reason[0] == Reason.LEADING_VEHICLE and d.object_id[0] == "a0"
+        if holds:  # the stop is the line's: bumper to the line, not to the car
+            assert 20.0 - 2.45 - 1.0 < d.distance[0] < 20.0 - 2.45 + 1.0
+            assert d.desired_speed[0] < np.sqrt(2.0 * 2.5 * (20.0 - 2.45 - 4.0)) + 0.01
+        else:
+            assert d.distance[0] > 20.0 - 2.45 + past - 1.5
+
+
 def test_stopped_car_ahead_is_followed_with_idm(downtown: RoadMap) -> None:
     """A car standing 25 m ahead in the lane: the expert names it and measures the bumper gap; at 10 m/s
     it brakes, at 5 m/s IDM still lets it close in, more gently than it would on an empty road."""

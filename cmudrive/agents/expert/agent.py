@@ -58,6 +58,7 @@ HORIZON = 80  # [route points = m] the path ahead that is planned and checked
 PATH_OUT = 40  # [points] of the planned path kept in the decision record
 PROGRESS_WINDOW = 6  # [route points = m] searched ahead each tick (a CAV moves < 2 m per tick)
 RED_LIGHT_POINT = 0.8  # the red-light criterion's point lies this many half lengths behind the centre
+RED_LIGHT_TAIL = 1.0  # [m] and its segment ends this far behind the rear bumper
 LOST = 3.0  # [m] a CAV this far from every route point of its search window is looked for on the whole route
 
 
@@ -85,6 +86,10 @@ class ExpertConfig:
     unblock_after: int = 170  # ticks standing for a forecast / give-way before ignoring them
     unblock_for: int = 40  # ticks they stay ignored
     standing_speed: float = 0.1  # [m/s]
+    # a green light is not entered while a vehicle standing or crawling (below this) just past the line
+    # would leave the CAV stopped across it: a red coming meanwhile is charged (the criterion's segment
+    # reaches 1 m behind the rear bumper), and the CAV blocks the junction
+    clear_box_speed: float = 2.0  # [m/s]
 
 
 @dataclass(frozen=True)
@@ -175,7 +180,7 @@ class ExpertAgent(Agent):
         corridor, followed = self._corridor(snap, rows, v, frac, half_len, path, cruise)
         verdict.take(corridor)
         verdict.take(self._detour_wait(det, v, cruise))
-        verdict.take(self._junction_terms(snap, i, v, ego_s, half_len, cruise, unblocking))
+        verdict.take(self._junction_terms(snap, i, v, ego_s, half_len, cruise, unblocking, corridor))
         around = [np.concatenate([a, t]) for a, t in zip(det.actors, det.traffic, strict=True)]
         verdict.take(self._forecast_term(snap, rows, i, v, path, verdict.accel, followed, around, unblocking))
 
@@ -311,10 +316,19 @@ class ExpertAgent(Agent):
         half_len: np.ndarray,
         cruise: np.ndarray,
         unblocking: np.ndarray,
+        corridor: Candidate | None = None,
     ) -> Candidate:
-        """Junction entries ahead: lights, stop signs, give way (the nearest entry that asks for a stop)."""
+        """Junction entries ahead: lights, stop signs, give way (the nearest entry that asks for a stop).
+        A green light whose line the CAV would stop across, behind the ``corridor`` object standing past
+        it, holds the CAV at the line too (reason: that object)."""
         c, p = self.config, self.plans
         n = len(i)
+        # [m] how far past a light's line the corridor object leaves room: the CAV's length, the red-light
+        # segment's 1 m behind the rear bumper, and the gap it keeps to a standing leader
+        box = 2.0 * half_len + RED_LIGHT_TAIL + GAPS[Reason.LEADING_VEHICLE].s0
+        lead_row = np.full(n, -1, np.int64) if corridor is None or corridor.row is None else corridor.row
+        lead_gap = np.full(n, np.inf) if corridor is None else corridor.distance
+        slow_lead = (lead_row >= 0) & (np.abs(snap.speed[np.maximum(lead_row, 0)]) < c.clear_box_speed)
         gap_all = p.entry_distance[i] - ego_s[:, None] - half_len[:, None]  # (n, E) bumper to line
         # the red-light criterion watches a point 0.8 half lengths behind the centre: until it has crossed
         # a light's line, a red still applies (a CAV that stood with its nose over the line, say for a
@@ -326,6 +340,7 @@ class ExpertAgent(Agent):
         allows = np.full(n, np.inf)
         whys = np.zeros(n, np.int8)
         dists = np.full(n, np.inf)
+        rows = np.full(n, -1, np.int64)
         for a in range(n):
             cav = int(i[a])
             for e in np.flatnonzero(upcoming[a]):
@@ -345,6 +360,12 @@ class ExpertAgent(Agent):
                         why = Reason.RED_LIGHT  # (past the line and too fast to stop in time: go on)
                     elif state == "y" and v[a] ** 2 / (2.0 * c.yellow_decel) < gap:
                         why = Reason.YELLOW_LIGHT
+                    elif (
+                        slow_lead[a]
+                        and lead_gap[a] < gap + box[a]
+                        and v[a] ** 2 / (2.0 * c.yellow_decel) < gap  # (as for a yellow: no hard stop)
+                    ):
+                        why = Reason.LEADING_VEHICLE  # keep the box clear: wait at the line
                 elif kind in (EntryKind.STOP_SIGN, EntryKind.ALLWAY_STOP) and self.stop_cleared[cav] < e:
                     why = Reason.STOP_SIGN
                     if v[a] < c.standing_speed and gap < c.stop_sign_area:
@@ -383,8 +404,10 @@ class ExpertAgent(Agent):
                             )[0]
                         )
                     terms[a], whys[a], dists[a], allows[a] = term, why, gap, allow
+                    if why == Reason.LEADING_VEHICLE:
+                        rows[a] = lead_row[a]
                     break  # the nearest entry that asks for a stop decides
-        return Candidate(terms, whys, None, dists, allows)
+        return Candidate(terms, whys, rows, dists, allows)
 
     def _forecast_term(
         self,
