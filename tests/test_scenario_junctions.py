@@ -304,9 +304,9 @@ def test_blocked_intersection_freezes_the_other_entries_until_it_ends(
     for name in ("stop_lane", "release_lane"):
         original = getattr(BackgroundActivity, name)
 
-        def spy(self: BackgroundActivity, lanes, _name=name, _original=original):  # type: ignore[no-untyped-def]
+        def spy(self: BackgroundActivity, lanes, *rest, _name=name, _original=original):  # type: ignore[no-untyped-def]
             calls.append((_name, sorted(int(x) for x in lanes), self._need_world().time))
-            return _original(self, lanes)
+            return _original(self, lanes, *rest)
 
         monkeypatch.setattr(BackgroundActivity, name, spy)
     seen = ends(monkeypatch)
