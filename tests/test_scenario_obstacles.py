@@ -297,16 +297,18 @@ def test_the_door_opening_halts_the_traffic_behind_until_the_end(
 ) -> None:
     """VehicleOpensDoorTwoWays (downtown): upstream's StopBack freezes the background traffic behind the
     ego when the door opens and StartBack releases it at the end: CAV 0's lane is halted from the tick the
-    door appears to the scenario's end."""
+    door appears to the scenario's end, behind CAV 0 only (what is ahead of it drives on)."""
     from cmudrive.sim.background import BackgroundActivity
 
     calls: list[tuple[str, list[int], float]] = []
+    before: list[float] = []
     for name in ("stop_lane", "release_lane"):
         original = getattr(BackgroundActivity, name)
 
-        def spy(self: BackgroundActivity, lanes, _name=name, _original=original):  # type: ignore[no-untyped-def]
+        def spy(self: BackgroundActivity, lanes, *rest, _name=name, _original=original):  # type: ignore[no-untyped-def]
             calls.append((_name, [int(x) for x in lanes], self._need_world().time))
-            return _original(self, lanes)
+            before.extend(rest)
+            return _original(self, lanes, *rest)
 
         monkeypatch.setattr(BackgroundActivity, name, spy)
     m = load_map("downtown")
@@ -319,3 +321,4 @@ def test_the_door_opening_halts_the_traffic_behind_until_the_end(
     assert [(c[0], c[1]) for c in calls] == [("stop_lane", [m.lane(lane)]), ("release_lane", [m.lane(lane)])]
     assert calls[0][2] == pytest.approx((present[0] + 1) * 0.05, abs=0.06)  # as the door opens
     assert calls[1][2] == pytest.approx((present[-1] + 1) * 0.05, abs=0.11)  # released at the end
+    assert len(before) == 1 and 20.0 < before[0] < 60.0 - 2.45  # CAV 0 past T (20 m), before the car (60 m)
