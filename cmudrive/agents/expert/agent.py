@@ -86,7 +86,7 @@ class ExpertConfig:
     unblock_after: int = 170  # ticks standing for a forecast / give-way before ignoring them
     unblock_for: int = 40  # ticks they stay ignored
     standing_speed: float = 0.1  # [m/s]
-    # a green light is not entered while a vehicle standing or crawling (below this) just past the line
+    # a green light is not entered while a corridor object standing or crawling (below this) past the line
     # would leave the CAV stopped across it: a red coming meanwhile is charged (the criterion's segment
     # reaches 1 m behind the rear bumper), and the CAV blocks the junction
     clear_box_speed: float = 2.0  # [m/s]
@@ -320,7 +320,7 @@ class ExpertAgent(Agent):
     ) -> Candidate:
         """Junction entries ahead: lights, stop signs, give way (the nearest entry that asks for a stop).
         A green light whose line the CAV would stop across, behind the ``corridor`` object standing past
-        it, holds the CAV at the line too (reason: that object)."""
+        it (a vehicle, a pedestrian on the crossing), holds the CAV at the line too (reason: that object)."""
         c, p = self.config, self.plans
         n = len(i)
         # [m] how far past a light's line the corridor object leaves room: the CAV's length, the red-light
@@ -328,6 +328,7 @@ class ExpertAgent(Agent):
         box = 2.0 * half_len + RED_LIGHT_TAIL + GAPS[Reason.LEADING_VEHICLE].s0
         lead_row = np.full(n, -1, np.int64) if corridor is None or corridor.row is None else corridor.row
         lead_gap = np.full(n, np.inf) if corridor is None else corridor.distance
+        lead_why = np.zeros(n, np.int8) if corridor is None else np.broadcast_to(corridor.reason, (n,))
         slow_lead = (lead_row >= 0) & (np.abs(snap.speed[np.maximum(lead_row, 0)]) < c.clear_box_speed)
         gap_all = p.entry_distance[i] - ego_s[:, None] - half_len[:, None]  # (n, E) bumper to line
         # the red-light criterion watches a point 0.8 half lengths behind the centre: until it has crossed
@@ -349,7 +350,7 @@ class ExpertAgent(Agent):
                     break
                 line_gap = gap if gap > 0.0 else float(rear_all[a, e])  # what is left to stop in
                 kind = int(p.entry_kind[cav, e])
-                term, why = np.inf, Reason.NONE
+                term, why, box_row = np.inf, Reason.NONE, -1
                 # a minor green ('g') or a light switched off on a minor link ('o'): go, but give way to
                 # the links with priority
                 permissive = False
@@ -365,7 +366,8 @@ class ExpertAgent(Agent):
                         and lead_gap[a] < gap + box[a]
                         and v[a] ** 2 / (2.0 * c.yellow_decel) < gap  # (as for a yellow: no hard stop)
                     ):
-                        why = Reason.LEADING_VEHICLE  # keep the box clear: wait at the line
+                        why = Reason(int(lead_why[a]))  # keep the box clear: wait at the line
+                        box_row = int(lead_row[a])
                 elif kind in (EntryKind.STOP_SIGN, EntryKind.ALLWAY_STOP) and self.stop_cleared[cav] < e:
                     why = Reason.STOP_SIGN
                     if v[a] < c.standing_speed and gap < c.stop_sign_area:
@@ -404,8 +406,7 @@ class ExpertAgent(Agent):
                             )[0]
                         )
                     terms[a], whys[a], dists[a], allows[a] = term, why, gap, allow
-                    if why == Reason.LEADING_VEHICLE:
-                        rows[a] = lead_row[a]
+                    rows[a] = box_row
                     break  # the nearest entry that asks for a stop decides
         return Candidate(terms, whys, rows, dists, allows)
 
