@@ -105,6 +105,15 @@ class Scene:
         return planner, s_pts - self.route.distance[k] + cav_s, out
 
 
+def straight_on(m: RoadMap, lane: int, past: float) -> Route:
+    """A route from 5 m along ``lane`` through the junction at its end to ``past`` m beyond it."""
+    end = float(m.lane_length[lane])
+    h = float(m.index.heading_at(np.array([lane]), np.array([end]))[0])
+    exit_xy = m.index.frenet_to_xy(np.array([lane]), np.array([end]))[0]
+    goal = exit_xy + past * np.array([np.cos(h), np.sin(h)])
+    return RoutePlanner(m).plan(m.index.frenet_to_xy(np.array([lane]), np.array([5.0]))[0], goal)
+
+
 def plateau(offset: np.ndarray) -> float:
     return float(offset[np.argmax(np.abs(offset))])
 
@@ -202,11 +211,7 @@ def test_a_car_waiting_at_the_junction_entry_is_not_an_obstacle() -> None:
     m = load_map(TWO_WAY[0])
     lane = m.lane(TWO_WAY[1])
     end = float(m.lane_length[lane])
-    h = float(m.index.heading_at(np.array([lane]), np.array([end]))[0])
-    exit_xy = m.index.frenet_to_xy(np.array([lane]), np.array([end]))[0] + 40.0 * np.array(
-        [np.cos(h), np.sin(h)]
-    )
-    route = RoutePlanner(m).plan(m.index.frenet_to_xy(np.array([lane]), np.array([5.0]))[0], exit_xy)
+    route = straight_on(m, lane, 40.0)
     assert route.in_junction.any()
     scene = Scene(*TWO_WAY)
     scene.route = route
@@ -252,13 +257,7 @@ def test_a_late_shift_ramps_from_the_junction_exit() -> None:
     50 m): a CAV standing inside the junction, where its lane has no neighbour, shifts from the junction's
     exit onward instead of giving up (it was BLOCKED there for good)."""
     m = load_map(TWO_WAY[0])
-    lane = m.lane(TWO_WAY[1])
-    end = float(m.lane_length[lane])
-    h = float(m.index.heading_at(np.array([lane]), np.array([end]))[0])
-    exit_xy = m.index.frenet_to_xy(np.array([lane]), np.array([end]))[0] + 60.0 * np.array(
-        [np.cos(h), np.sin(h)]
-    )
-    route = RoutePlanner(m).plan(m.index.frenet_to_xy(np.array([lane]), np.array([5.0]))[0], exit_xy)
+    route = straight_on(m, m.lane(TWO_WAY[1]), 60.0)
     inside = np.flatnonzero(route.in_junction)
     exit_s = float(route.distance[inside[-1] + 1])
     scene = RouteScene(TWO_WAY[0], route)
