@@ -87,11 +87,10 @@ class CommandsMixin:
         limit = np.array([self._stopped_lanes[int(ln)] for ln in scene.lane[on].tolist()])
         part = np.isfinite(limit)
         if part.any():  # StopBack: only what is behind the point (and what was halted before)
-            s, _ = self._need_world().map.index.project(scene.xy[on[part]], scene.lane[on[part]])
-            keep = np.array([scene.ids[r] in self._halted for r in on.tolist()], bool)
-            keep[~part] = True
-            keep[np.flatnonzero(part)[s < limit[part]]] = True
-            on = on[keep]
+            s = np.full(len(on), -np.inf)
+            s[part], _ = self._need_world().map.index.project(scene.xy[on[part]], scene.lane[on[part]])
+            before = np.array([scene.ids[r] in self._halted for r in on.tolist()], bool)
+            on = on[(s < limit) | before]
         for r in on.tolist():
             actor_id = scene.ids[r]
             if actor_id not in self._halted:
