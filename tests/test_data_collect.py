@@ -1,5 +1,5 @@
 """Collecting shards in closed loop on the mini network: labels of a straight drive, the shards load with
-``datasets``, resume, a bad route, and the benchmark-route guard."""
+``datasets``, resume, a bad route, the benchmark-route guard, and recovery views."""
 
 from __future__ import annotations
 
@@ -23,6 +23,7 @@ from cmudrive.bench.runner import ProgressCallback, RouteTask, run_task
 from cmudrive.data import (
     COLUMNS,
     BenchmarkRouteError,
+    RecoveryViews,
     ShardJob,
     check_not_benchmark,
     collect,
@@ -32,10 +33,12 @@ from cmudrive.data import (
     unpack_occupancy,
 )
 from cmudrive.data.collector import SAMPLE_EVERY
+from cmudrive.data.recovery import moved, to_view, view_poses
 from cmudrive.maps import RoadMap
 from cmudrive.maps.coords import map_to_carla
 from cmudrive.sim.background import BackgroundConfig
 from cmudrive.sim.dynamics import Controls
+from cmudrive.sim.snapshot import Snapshot
 
 EMPTY = EvalConfig(tick_cap=300, background=BackgroundConfig(vehicles=0, pedestrians=0))
 ROUTES = Path(__file__).resolve().parents[1] / "cmudrive" / "assets" / "routes"
@@ -256,3 +259,92 @@ def test_rows_feed_the_model_processor(dataset_dir: Path) -> None:
     assert batch.path is not None and tuple(batch.path.shape) == (len(rows), 20, 2)
     assert batch.speed_waypoints is not None and tuple(batch.speed_waypoints.shape) == (len(rows), 10, 2)
     assert tuple(batch.target_points.shape) == (len(rows), 2, 2)
+
+
+# ---------------------------------------------------------------- recovery views (cmudrive.data.recovery)
+@pytest.fixture(scope="module")
+def with_views(straight: RouteSpec, tmp_path_factory: pytest.TempPathFactory) -> datasets.Dataset:
+    """The straight two-CAV drive of test_data_collect, half of its rows with a view up to 1.5 m aside
+    and no turn (so that the lane's offset in the view reads directly)."""
+    out = tmp_path_factory.mktemp("views")
+    summary = collect([straight], out, InlineExecutor(), EMPTY, recovery=RecoveryViews(0.5, 1.5, 0.0))
+    assert summary.written == ["straight"], summary.failed
+    return datasets.load_dataset("parquet", data_dir=str(out), split="train")
+
+
+def _own_and_views(ds: datasets.Dataset) -> tuple[np.ndarray, np.ndarray]:
+    view = np.asarray(ds["view"], np.float64)
+    is_view = np.abs(view).sum(axis=1) > 0
+    return np.flatnonzero(~is_view), np.flatnonzero(is_view)
+
+
+def test_the_cavs_own_rows_are_those_of_a_collection_without_views(
+    with_views: datasets.Dataset, dataset_dir: Path
+) -> None:
+    plain = datasets.load_dataset("parquet", data_dir=str(dataset_dir), split="train")
+    own, views = _own_and_views(with_views)
+    assert len(own) == len(plain)
+    assert 0.35 * len(own) < len(views) < 0.65 * len(own)  # half of the rows, drawn
+    cols = ["cav", "tick", "speed", "path", "speed_waypoints", "target_points", "merged_occupancy"]
+    a = with_views.select(own).select_columns(cols).with_format("numpy")[:]
+    b = plain.select_columns(cols).with_format("numpy")[:]
+    for c in cols:
+        np.testing.assert_array_equal(a[c], b[c], err_msg=c)
+    assert with_views.select(own)["camera"][0].tobytes() == plain["camera"][0].tobytes()
+
+
+def test_a_view_beside_the_cav_puts_its_lane_centre_that_far_the_other_way(
+    with_views: datasets.Dataset, mini: RoadMap
+) -> None:
+    """CAV 0 drives east along lane CE_1 (straight, heading +x): from a view dy to its left, every path
+    point lies on the lane's centre line, dy (+- 0.05 m) to the right of where the CAV itself sees it."""
+    own, views = _own_and_views(with_views)
+    ds = with_views.with_format("numpy")
+    cols = ds.select_columns(["cav", "tick", "view", "path", "target_points"])[:]
+    key = {
+        (int(c), int(t)): i for i, (c, t) in enumerate(zip(cols["cav"][own], cols["tick"][own], strict=True))
+    }
+    checked = 0
+    for i in views:
+        c, t = int(cols["cav"][i]), int(cols["tick"][i])
+        j = own[key[(c, t)]]
+        dy = float(cols["view"][i][1])
+        assert cols["view"][i][0] == 0.0 and cols["view"][i][2] == 0.0
+        np.testing.assert_allclose(cols["path"][i][:, 1], cols["path"][j][:, 1] - dy, atol=1e-5)
+        np.testing.assert_allclose(cols["path"][i][:, 0], cols["path"][j][:, 0], atol=1e-5)
+        np.testing.assert_allclose(
+            cols["target_points"][i][:, 1], cols["target_points"][j][:, 1] - dy, atol=1e-4
+        )
+        if c == 0 and abs(dy) > 0.5:
+            assert np.abs(cols["path"][j][:, 1]).max() < 0.05  # the expert holds the lane centre
+            np.testing.assert_allclose(cols["path"][i][:, 1], -dy, atol=0.05)
+            checked += 1
+    assert checked >= 5
+
+
+def test_views_are_sensed_from_their_own_pose(with_views: datasets.Dataset) -> None:
+    """A view's camera differs from the CAV's own image of the same tick, and the view's BEV still draws
+    the ego box where a BEV draws it (the image centre is the view's pose)."""
+    own, views = _own_and_views(with_views)
+    ds = with_views
+    cav, tick = np.asarray(ds["cav"]), np.asarray(ds["tick"])
+    i = int(views[np.argmax(np.abs(np.asarray(ds["view"])[views, 1]))])  # the farthest view
+    j = int(own[(cav[own] == cav[i]) & (tick[own] == tick[i])][0])
+    a, b = np.asarray(ds[i]["camera"], np.float64), np.asarray(ds[j]["camera"], np.float64)
+    assert np.abs(a - b).mean() > 2.0  # grey levels of 255: the road and its markings moved
+
+
+def test_view_poses_and_the_moved_snapshot() -> None:
+    """A view 1 m left of a CAV heading north (+y) stands 1 m west of it, turned as asked; only the CAV's
+    row of the snapshot moves; a point 1 m right of the CAV's front sits 2 m right in the view."""
+    pose = view_poses(np.array([10.0]), np.array([5.0]), np.array([np.pi / 2]), np.array([[0.0, 1.0, 0.1]]))
+    np.testing.assert_allclose(pose, [[9.0, 5.0, np.pi / 2 + 0.1]], atol=1e-12)
+    snap = Snapshot.from_rows(0, 0.0, np.array([], str), x=np.array([10.0, 30.0]), y=np.array([5.0, 5.0]))
+    there = moved(snap, np.array([0]), pose)
+    assert (there.x[0], there.y[0]) == (9.0, 5.0) and there.x[1] == 30.0 and snap.x[0] == 10.0
+    np.testing.assert_allclose(to_view(np.array([[2.0, -1.0]]), np.array([0.0, 1.0, 0.0])), [[2.0, -2.0]])
+
+
+def test_a_share_outside_zero_to_one_is_refused() -> None:
+    with pytest.raises(ValueError, match="share must be in"):
+        RecoveryViews(prob=1.5)

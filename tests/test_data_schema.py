@@ -73,6 +73,7 @@ def rows(n: int) -> dict[str, list]:
         "cav": list(range(n)),
         "tick": [5 * i for i in range(n)],
         "time": [0.25 * i for i in range(n)],
+        "view": [[0.0, 0.0, 0.0], [0.0, 1.0, 0.1], [0.0, 0.0, 0.0]][:n],
         "camera": [image] * n,
         "occupancy": list(grids),
         "merged_occupancy": list(grids[::-1]),

@@ -56,6 +56,15 @@ def data_collect(
     allow_benchmark_routes: Annotated[
         bool, typer.Option(help="collect on routes of cmudrive220/cmudrive44 too (never for training data)")
     ] = False,
+    recovery_views: Annotated[
+        float,
+        typer.Option(
+            min=0.0,
+            max=1.0,
+            help="share of sampled rows that get a second row rendered from a pose beside the CAV, "
+            "labelled back toward its path (docs/data.md, 'Recovery views')",
+        ),
+    ] = 0.0,
     town_dir: TownDirs = None,
 ) -> None:
     """Run the expert on the routes and save one sample per active CAV every 5th tick (docs/data.md)."""
@@ -63,7 +72,7 @@ def data_collect(
 
     from cmudrive.bench.evaluator import EvalConfig
     from cmudrive.bench.records import RouteResult
-    from cmudrive.data import collect, shard_path
+    from cmudrive.data import RecoveryViews, collect, shard_path
     from cmudrive.data.shards import shard_rows
 
     path, specs = read_specs(routes, town_dir, limit_routes, subset=routes_subset)
@@ -105,6 +114,7 @@ def data_collect(
                     on_result=on_result,
                     on_progress=on_progress,
                     routes_file=path,
+                    recovery=RecoveryViews(prob=recovery_views),
                 )
         except KeyboardInterrupt:
             err_console.print(f"interrupted: finished shards are in {out}; continue with --resume")

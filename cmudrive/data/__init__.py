@@ -16,6 +16,7 @@ from cmudrive.data.labels import (
     waypoint_labels,
 )
 from cmudrive.data.language import Language, LanguageInputs, describe
+from cmudrive.data.recovery import RecoveryViews
 from cmudrive.data.schema import COLUMNS, features, pack_occupancy, unpack_occupancy
 from cmudrive.data.shards import (
     ShardError,
@@ -39,6 +40,7 @@ __all__ = [
     "CollectingAgent",
     "Language",
     "LanguageInputs",
+    "RecoveryViews",
     "RouteInfo",
     "ShardError",
     "ShardJob",

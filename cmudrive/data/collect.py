@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import pyarrow as pa
@@ -36,6 +36,7 @@ from cmudrive.bench.runner import (
     write_json_atomic,
 )
 from cmudrive.data.collector import SAMPLE_EVERY, CollectingAgent, RouteInfo
+from cmudrive.data.recovery import RecoveryViews
 from cmudrive.data.schema import features
 from cmudrive.data.shards import MANIFEST, RECORDS_DIR, ShardWriter, shard_complete, shard_path
 
@@ -57,6 +58,7 @@ class ShardJob:
     schema: pa.Schema  # features(sensors.occupancy).arrow_schema, built where datasets is imported
     sample_every: int = SAMPLE_EVERY
     sensors: SensorConfig = field(default_factory=SensorConfig)
+    recovery: RecoveryViews = field(default_factory=RecoveryViews)
 
     def __call__(
         self,
@@ -79,7 +81,11 @@ class ShardJob:
             expert = make_agent()
             if not isinstance(expert, ExpertAgent):
                 raise TypeError(f"data collection needs the ExpertAgent, got {type(expert).__name__}")
-            made.append(CollectingAgent(expert, info, writer, self.sample_every, self.sensors, spec.seed))
+            made.append(
+                CollectingAgent(
+                    expert, info, writer, self.sample_every, self.sensors, spec.seed, self.recovery
+                )
+            )
             return made[0]
 
         try:
@@ -145,6 +151,7 @@ def collect(
     on_result: Callable[[RouteResult, bool], None] | None = None,
     on_progress: ProgressCallback | None = None,
     routes_file: Path | None = None,
+    recovery: RecoveryViews | None = None,
 ) -> CollectSummary:
     """Collect shards for ``routes`` into ``out`` (module docstring). ``on_result(record, shard_written)``
     hears of every route as it finishes. Without ``resume``, ``out`` must hold no shard yet; with it, the
@@ -162,13 +169,17 @@ def collect(
             "or write to another folder"
         )
     config = config or EvalConfig()
-    setup = run_setup("collect", EXPERT, config, job={"sample_every": sample_every})
+    recovery = recovery or RecoveryViews()
+    job_settings: dict[str, object] = {"sample_every": sample_every}
+    if recovery.prob > 0.0:  # a run without views keeps the setup (and resumability) of older runs
+        job_settings["recovery_views"] = asdict(recovery)
+    setup = run_setup("collect", EXPERT, config, job=job_settings)
     hashes = {spec.id: route_sha256(spec) for spec in routes}
     kept = load_records(out / RECORDS_DIR, done)
     settings = {"executor": type(executor).__name__, "workers": getattr(executor, "workers", None)}
     run = start_run(out, setup, hashes, resume, kept, len(done), settings, routes_file, MANIFEST)
     schema = features(config.sensors.occupancy).arrow_schema
-    job = ShardJob(str(out.resolve()), schema, sample_every, config.sensors)
+    job = ShardJob(str(out.resolve()), schema, sample_every, config.sensors, recovery)
     tasks = [RouteTask(s, EXPERT, config, job=job) for s in routes if s.id not in done]
     summary = CollectSummary(skipped=[i for i in ids if i in done])
     for result in executor.run(tasks, on_progress):

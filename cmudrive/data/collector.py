@@ -30,9 +30,10 @@ import numpy as np
 from cmudrive.agents.base import Agent, Observation, Observations, RouteSetup
 from cmudrive.agents.expert import ExpertAgent, Reason
 from cmudrive.agents.expert.agent import ExpertDecision
-from cmudrive.bench.observe import ObservationBuilder, SensorConfig
+from cmudrive.bench.observe import ObservationBuilder, SensorConfig, relative_poses
 from cmudrive.data.labels import PATH_POINTS, PATH_SPACING, SPEED_POINTS, SPEED_STEP_TICKS, waypoint_labels
 from cmudrive.data.language import Language, LanguageInputs, describe
+from cmudrive.data.recovery import RecoveryViews, moved, to_view, view_poses
 from cmudrive.data.schema import COLUMNS, pack_occupancy
 from cmudrive.data.shards import ROW_GROUP, ShardWriter
 from cmudrive.maps import RoadMap, load_scenery
@@ -40,6 +41,7 @@ from cmudrive.model import row  # the module, not its names: cmudrive.model.row 
 from cmudrive.sim.dynamics import Controls
 from cmudrive.sim.snapshot import ActorKind, Snapshot
 from cmudrive.sim.weather import get_weather
+from cmudrive.v2v.warp import warp_and_merge
 
 SAMPLE_EVERY = 5  # [ticks] 4 Hz at 20 Hz
 LANGUAGE_TICKS = 25  # [ticks] the expert's target speed is looked up at t+5 .. t+25 for the language
@@ -78,6 +80,16 @@ class _SampleTick:
     rows: np.ndarray  # (n,) snapshot rows of the CAVs, decision.cav_index order
     visibility: Any  # cmudrive.sensors.Visibility
     columns: dict[str, list[Any]] = field(default_factory=dict)  # inputs and controls, one entry per CAV
+    views: list[_View] = field(default_factory=list)  # recovery views (cmudrive.data.recovery)
+
+
+@dataclass
+class _View:
+    """A recovery view of the CAV at ``slot`` of its sample tick: its inputs and its offset."""
+
+    slot: int  # index into the tick's decision.cav_index
+    offset: np.ndarray  # (3,) x, y [m], yaw [rad]
+    columns: dict[str, Any]  # one value per input column
 
 
 class _Trace:
@@ -118,6 +130,7 @@ class CollectingAgent(Agent):
         sample_every: int = SAMPLE_EVERY,
         sensors: SensorConfig | None = None,
         seed: int = 0,
+        recovery: RecoveryViews | None = None,
     ) -> None:
         if sample_every < 1:
             raise ValueError(f"sample_every must be >= 1 tick, got {sample_every}")
@@ -125,6 +138,8 @@ class CollectingAgent(Agent):
         self.sample_every = sample_every
         self.sensor_config = sensors or SensorConfig()
         self.seed = seed
+        self.recovery = recovery or RecoveryViews()
+        self.view_rng = np.random.default_rng([seed, 3])
         self.pending: list[_SampleTick] = []
         self.buffer: dict[str, list[Any]] = {k: [] for k in COLUMNS}
         self.active = np.zeros(info.num_cavs, bool)
@@ -145,6 +160,17 @@ class CollectingAgent(Agent):
             road_map=self.road_map,
         )
         self.row_builder = row.RowBuilder(route.cavs, self.sensor_config.occupancy)
+        self.viewer: ObservationBuilder | None = None
+        if self.recovery.prob > 0.0:  # own and partner occupancy of the views, its own noise generator
+            self.viewer = ObservationBuilder(
+                frozenset({Observation.OCCUPANCY}),
+                len(route.cavs),
+                self.observer.weather,
+                self.observer.scenery,
+                config=self.sensor_config,
+                rng=np.random.default_rng([self.seed, 4]),
+                road_map=self.road_map,
+            )
         self.trace = _Trace(len(route.cavs))
         self._warm_up(route)
 
@@ -219,7 +245,62 @@ class CollectingAgent(Agent):
             "brake": [float(v) for v in controls.brake],
         }
         assert self.observer.last_visibility is not None
-        return _SampleTick(obs.tick, obs.time, snap, decision, rows, self.observer.last_visibility, cols)
+        sample = _SampleTick(obs.tick, obs.time, snap, decision, rows, self.observer.last_visibility, cols)
+        if self.viewer is not None:
+            sample.views = self._views(obs, rows, inputs, sensed.partner)
+        return sample
+
+    def _views(
+        self, obs: Observations, rows: np.ndarray, inputs: row.RowInputs, partner: np.ndarray
+    ) -> list[_View]:
+        """Recovery views of a share of this tick's rows (``cmudrive.data.recovery``): sensed in a copy of
+        the snapshot where the chosen CAVs stand at their views, merged with the tick's partners' grids
+        sensed in that copy too."""
+        assert self.viewer is not None and self.observer.camera is not None and obs.snapshot is not None
+        sel, offset = self.recovery.draw(self.view_rng, len(rows))
+        if len(sel) == 0:
+            return []
+        snap = obs.snapshot
+        there = moved(
+            snap, rows[sel], view_poses(snap.x[rows[sel]], snap.y[rows[sel]], snap.yaw[rows[sel]], offset)
+        )
+        pose = np.stack([there.x[rows], there.y[rows], there.yaw[rows]], axis=1)  # (n, 3) every active CAV
+        slot = {int(c): j for j, c in enumerate(obs.cav_index)}
+        mate = np.array([slot.get(int(p), -1) for p in partner[sel]], np.int64)  # -1: no partner
+        has = mate >= 0
+        sensed = np.unique(np.concatenate([sel, mate[has]]))  # the views and their partners
+        grids = self.viewer.build(
+            there, obs.tick, rows[sensed], obs.cav_index[sensed], privileged=True
+        ).occupancy
+        assert grids is not None
+        own = grids[np.searchsorted(sensed, sel)]
+        mate = np.where(has, mate, sel)  # rows without a partner merge nothing (has is False)
+        merged = warp_and_merge(
+            own,
+            grids[np.searchsorted(sensed, mate)],
+            pose[mate],
+            pose[sel],
+            has,
+            self.sensor_config.occupancy,
+        )
+        camera = self.observer.camera.render(there, rows[sel], self.observer.weather)
+        relative = relative_poses(pose[:, 0], pose[:, 1], pose[:, 2], obs.cav_index, self.info.num_cavs)[sel]
+        views = self.row_builder.view(inputs, sel, offset, camera, merged, relative)
+        assert views.bev is not None
+        stored = self.row_builder.stored(views)
+        packed_own = pack_occupancy(own)
+        return [
+            _View(
+                int(a),
+                offset[i],
+                {
+                    **{name: values[i] for name, values in stored.items()},
+                    "occupancy": packed_own[i],
+                    "merged_occupancy": views.bev[i],
+                },
+            )
+            for i, a in enumerate(sel)
+        ]
 
     def _ready(self, sample: _SampleTick, now: int | None) -> bool:
         """Every CAV of the sample has its future: left the world, or LABEL_TICKS and PATH_REACH ahead."""
@@ -258,44 +339,63 @@ class CollectingAgent(Agent):
                 road_map=self.road_map,
             )
         )
-        b = self.buffer
+        labels = []
         for a, k in enumerate(i):
             k = int(k)
             last = int(self.trace.last_tick[k])
             traj = data[s.tick : last + 1, k]
             traj = traj[~np.isnan(traj[:, 0])]
-            path, speed_wp = waypoint_labels(
-                traj[:, :2], float(traj[0, 2]), self.trace.plan[k], float(traj[-1, 3])
+            labels.append(
+                waypoint_labels(traj[:, :2], float(traj[0, 2]), self.trace.plan[k], float(traj[-1, 3]))
             )
-            b["route_id"].append(self.info.route_id)
-            b["scenario_type"].append(self.info.scenario_type)
-            b["weather"].append(self.info.weather)
-            b["town"].append(self.info.town)
-            b["num_cavs"].append(self.info.num_cavs)
-            b["cav"].append(k)
-            b["tick"].append(s.tick)
-            b["time"].append(s.time)
-            for name, values in s.columns.items():
-                b[name].append(values[a])
-            b["path"].append(path)
-            b["speed_waypoints"].append(speed_wp)
-            b["reason"].append(Reason(int(d.reason[a])).name)
-            b["object_id"].append(str(d.object_id[a]))
-            kind = int(d.object_kind[a])
-            b["object_kind"].append(ActorKind(kind).name if kind >= 0 else "")
-            dist = float(d.distance[a])
-            b["object_distance"].append(dist if np.isfinite(dist) else float("nan"))
-            b["target_speed"].append(float(d.target_speed[a]))
-            b["desired_speed"].append(float(d.desired_speed[a]))
-            lang: Language = language[a]
-            b["commentary"].append(lang.commentary)
-            b["communication"].append(lang.communication)
-            b["partner_label"].append(int(lang.partner_label))
-            b["route_action"].append(lang.route_action)
-            b["speed_action"].append(lang.speed_action)
-        self.samples += n
+            self._row(s, a, {name: values[a] for name, values in s.columns.items()}, *labels[a], language[a])
+        for v in s.views:  # from the view's frame the CAV's own path leads back (cmudrive.data.recovery)
+            path, speed_wp = (to_view(p, v.offset) for p in labels[v.slot])
+            inputs = {name: values[v.slot] for name, values in s.columns.items()}  # partner, controls
+            self._row(s, v.slot, {**inputs, **v.columns}, path, speed_wp, language[v.slot], v.offset)
+        self.samples += n + len(s.views)
         # a labelled tick's snapshot and visibility are no longer needed
         s.columns.clear()
+        s.views.clear()
+
+    def _row(
+        self,
+        s: _SampleTick,
+        a: int,
+        inputs: dict[str, Any],
+        path: np.ndarray,
+        speed_wp: np.ndarray,
+        lang: Language,
+        view: np.ndarray | None = None,
+    ) -> None:
+        """Append the row of the CAV at slot ``a`` of sample ``s`` (its own, or a view's ``inputs``)."""
+        d, b = s.decision, self.buffer
+        b["route_id"].append(self.info.route_id)
+        b["scenario_type"].append(self.info.scenario_type)
+        b["weather"].append(self.info.weather)
+        b["town"].append(self.info.town)
+        b["num_cavs"].append(self.info.num_cavs)
+        b["cav"].append(int(d.cav_index[a]))
+        b["tick"].append(s.tick)
+        b["time"].append(s.time)
+        b["view"].append([0.0, 0.0, 0.0] if view is None else [float(v) for v in view])
+        for name, value in inputs.items():
+            b[name].append(value)
+        b["path"].append(path)
+        b["speed_waypoints"].append(speed_wp)
+        b["reason"].append(Reason(int(d.reason[a])).name)
+        b["object_id"].append(str(d.object_id[a]))
+        kind = int(d.object_kind[a])
+        b["object_kind"].append(ActorKind(kind).name if kind >= 0 else "")
+        dist = float(d.distance[a])
+        b["object_distance"].append(dist if np.isfinite(dist) else float("nan"))
+        b["target_speed"].append(float(d.target_speed[a]))
+        b["desired_speed"].append(float(d.desired_speed[a]))
+        b["commentary"].append(lang.commentary)
+        b["communication"].append(lang.communication)
+        b["partner_label"].append(int(lang.partner_label))
+        b["route_action"].append(lang.route_action)
+        b["speed_action"].append(lang.speed_action)
 
     def _write(self, force: bool) -> None:
         if len(self.buffer["route_id"]) >= ROW_GROUP or (force and self.buffer["route_id"]):

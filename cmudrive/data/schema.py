@@ -35,7 +35,7 @@ CAMERA_FORMAT = "JPEG"
 JPEG_QUALITY = 90  # [-] PIL's scale; see docs/data.md for the size / speed / error trade-off
 PNG_COMPRESS_LEVEL = 1  # zlib level for the BEV PNGs: level 6 saves ~10 % more at ~3x the time
 
-METADATA = ("route_id", "scenario_type", "weather", "town", "num_cavs", "cav", "tick", "time")
+METADATA = ("route_id", "scenario_type", "weather", "town", "num_cavs", "cav", "tick", "time", "view")
 INPUTS = (
     "camera",
     "occupancy",
@@ -82,6 +82,7 @@ def features(occupancy: OccupancyConfig | None = None) -> datasets.Features:
         "cav": i32,
         "tick": i32,
         "time": f32,
+        "view": datasets.List(f32, length=3),  # x, y [m], yaw [rad] of the view in the CAV's frame
         "camera": datasets.Image(),
         "occupancy": array(h, w, "uint8"),
         "merged_occupancy": array(h, w, "uint8"),

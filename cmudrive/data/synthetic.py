@@ -57,6 +57,7 @@ def synthetic_row(route_id: str, index: int, rng: np.random.Generator, num_cavs:
         "cav": cav,
         "tick": 5 * (index // num_cavs),
         "time": 0.25 * (index // num_cavs),
+        "view": [0.0, 0.0, 0.0],
         "camera": encode_image(camera, "JPEG"),
         "occupancy": packed,
         "merged_occupancy": packed,

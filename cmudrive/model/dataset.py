@@ -13,6 +13,7 @@ from __future__ import annotations
 import io
 import math
 from collections.abc import Iterator, Sequence
+from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
@@ -23,6 +24,7 @@ from cmudrive.agents.control import expert_stops
 from cmudrive.model.augment import YawAugment, rotate_sample
 from cmudrive.model.row import STANDING_SPEED, TRAIN_COLUMNS, standing_seconds
 
+VIEW = "view"  # where a row was seen from, in the CAV's frame (zeros: the CAV's own view)
 GRID = "merged_occupancy"  # the stored grid the augmentation re-draws a rotated row's BEV from
 
 
@@ -48,22 +50,36 @@ def load_split(config: SplitSettings) -> tuple[Any, Any, list[str]]:
     val_routes = split_routes(sorted(set(route_of.tolist())), config.val_fraction, config.seed)
     is_val = np.isin(route_of, val_routes)
     train_rows = np.flatnonzero(~is_val & keep_rows(ds, config.standing_keep, config.seed))
+    is_val &= ~recovery_rows(ds)  # validation: the CAVs' own views, comparable across collections
     if config.communication_repeat > 1:
         train_rows = repeat_rows(train_rows, communication_rows(ds)[train_rows], config.communication_repeat)
     return ds.select(train_rows), ds.select(np.flatnonzero(is_val)), val_routes
 
 
 def load_rows(data: str, extra: Sequence[str] = ()) -> Any:
-    """The training columns (and ``extra`` ones) of every row of the shards in ``data``, and the derived
-    input ``standing`` (:func:`cmudrive.model.row.standing_seconds`: from the whole sequence of each CAV's
-    rows, so before any selection)."""
-    from cmudrive.data.shards import load_shards
+    """The training columns (and ``extra`` ones) of every row of the shards in ``data``, ``view`` where
+    the shards have it (collections before recovery views do not), and the derived input ``standing``
+    (:func:`cmudrive.model.row.standing_seconds`: from the whole sequence of each CAV's rows, so before
+    any selection)."""
+    import pyarrow.parquet as pq
 
-    ds = load_shards(data, (*TRAIN_COLUMNS, *extra))  # datasets' parquet loader over DIR/<route>.parquet
+    from cmudrive.data.shards import load_shards, shard_paths
+
+    views = all(VIEW in pq.read_schema(p).names for p in shard_paths(Path(data)))
+    columns = (*TRAIN_COLUMNS, *extra, *((VIEW,) if views and VIEW not in extra else ()))
+    ds = load_shards(data, columns)  # datasets' parquet loader over DIR/<route>.parquet
     table = ds.data.table
     column = {name: table.column(name).to_numpy() for name in ("route_id", "cav", "time", "speed")}
     standing = standing_seconds(column["route_id"], column["cav"], column["time"], column["speed"])
     return ds.add_column("standing", standing)
+
+
+def recovery_rows(ds: Any) -> np.ndarray:
+    """(N,) bool: rows seen from a recovery view (``cmudrive.data.recovery``), not from the CAV itself."""
+    if VIEW not in ds.column_names:
+        return np.zeros(len(ds), bool)
+    view = ds.data.table.column(VIEW).combine_chunks().flatten().to_numpy().reshape(len(ds), 3)
+    return np.abs(view).sum(axis=1) > 0.0
 
 
 STANDING_STAYS = 0.5  # [m] the last speed waypoint (2.5 s ahead) within this of the CAV

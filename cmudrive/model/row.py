@@ -228,6 +228,38 @@ class RowBuilder:
             other_cavs=other_cavs(obs.other_cavs),
         )
 
+    def view(
+        self,
+        inputs: RowInputs,
+        sel: np.ndarray,
+        offset: np.ndarray,
+        camera: np.ndarray,
+        bev_grid: np.ndarray,
+        relative: np.ndarray,
+    ) -> RowInputs:
+        """The rows of CAVs ``inputs[sel]`` as seen from view poses ``offset`` (k, 3): x, y [m], yaw [rad]
+        in each CAV's own frame (a recovery view, ``cmudrive.data.recovery``). ``camera`` (k, H, W, 3) and
+        ``bev_grid`` (k, C, H, W) are rendered from the view poses, ``relative`` (k, K, 3) holds every CAV's
+        pose in each view's frame (``Observations.other_cavs``); the target points move into the view's
+        frame; speed and standing time stay the CAV's."""
+        sel = np.asarray(sel, np.int64)
+        offset = np.asarray(offset, np.float64).reshape(len(sel), 3)
+        tp = to_ego(
+            inputs.target_points[sel].astype(np.float64),
+            offset[:, None, 0],
+            offset[:, None, 1],
+            offset[:, None, 2],
+        )
+        return RowInputs(
+            cav_index=inputs.cav_index[sel],
+            camera=camera,
+            bev=pack_occupancy(bev_grid),
+            speed=inputs.speed[sel],
+            standing=inputs.standing[sel],
+            target_points=tp.astype(np.float32),
+            other_cavs=other_cavs(relative),
+        )
+
     def stored(self, inputs: RowInputs) -> dict[str, list[Any]]:
         """The dataset columns of the rows (:data:`INPUT_COLUMNS`, images encoded as stored)."""
         if inputs.bev is None:
