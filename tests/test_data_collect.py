@@ -220,7 +220,7 @@ def test_stats_and_show_commands(dataset_dir: Path, tmp_path: Path) -> None:
     assert 0 < stats["bytes_per_sample"] < 20_000
     assert stats["ranges"]["path end x [m]"]["max"] == pytest.approx(19.0, abs=1e-3)  # a straight road
     result = CliRunner().invoke(app, ["data", "stats", str(dataset_dir)])
-    assert result.exit_code == 0 and f"{len(ds)} samples from 1 routes" in result.output
+    assert result.exit_code == 0 and f"{len(ds)} samples from 1 routes (1 shards; 0 of them" in result.output
     out = tmp_path / "grid.png"
     result = CliRunner().invoke(app, ["data", "show", str(dataset_dir), "-o", str(out), "--count", "3"])
     assert result.exit_code == 0, result.output
@@ -263,13 +263,18 @@ def test_rows_feed_the_model_processor(dataset_dir: Path) -> None:
 
 # ---------------------------------------------------------------- recovery views (cmudrive.data.recovery)
 @pytest.fixture(scope="module")
-def with_views(straight: RouteSpec, tmp_path_factory: pytest.TempPathFactory) -> datasets.Dataset:
-    """The straight two-CAV drive of test_data_collect, half of its rows with a view up to 1.5 m aside
-    and no turn (so that the lane's offset in the view reads directly)."""
+def views_dir(straight: RouteSpec, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The straight two-CAV drive, half of its rows with a view up to 1.5 m aside and no turn (so that the
+    lane's offset in the view reads directly)."""
     out = tmp_path_factory.mktemp("views")
     summary = collect([straight], out, InlineExecutor(), EMPTY, recovery=RecoveryViews(0.5, 1.5, 0.0))
     assert summary.written == ["straight"], summary.failed
-    return datasets.load_dataset("parquet", data_dir=str(out), split="train")
+    return out
+
+
+@pytest.fixture(scope="module")
+def with_views(views_dir: Path) -> datasets.Dataset:
+    return datasets.load_dataset("parquet", data_dir=str(views_dir), split="train")
 
 
 def _own_and_views(ds: datasets.Dataset) -> tuple[np.ndarray, np.ndarray]:
@@ -320,6 +325,14 @@ def test_a_view_beside_the_cav_puts_its_lane_centre_that_far_the_other_way(
             np.testing.assert_allclose(cols["path"][i][:, 1], -dy, atol=0.05)
             checked += 1
     assert checked >= 5
+
+
+def test_stats_count_the_views(with_views: datasets.Dataset, views_dir: Path, dataset_dir: Path) -> None:
+    from cmudrive.data.stats import dataset_stats
+
+    _, views = _own_and_views(with_views)
+    assert dataset_stats(views_dir)["recovery_views"] == len(views) > 0
+    assert dataset_stats(dataset_dir)["recovery_views"] == 0
 
 
 def test_views_are_sensed_from_their_own_pose(with_views: datasets.Dataset) -> None:

@@ -10,6 +10,7 @@ import shutil
 from pathlib import Path
 
 import numpy as np
+import pyarrow.parquet as pq
 import pytest
 
 pytest.importorskip("torch", reason="training needs the 'model' extra (torch, transformers, accelerate)")
@@ -32,6 +33,7 @@ from cmudrive.model.dataset import (
     communication_rows,
     keep_rows,
     load_split,
+    recovery_rows,
     repeat_rows,
     sampling_buckets,
     split_routes,
@@ -57,6 +59,33 @@ def test_validation_holds_out_whole_routes(data: Path) -> None:
     assert not set(train_rows["route_id"]) & set(val_routes)
     assert split_routes(["a"], 0.5, 0) == []  # a single route trains
     assert len(split_routes([str(i) for i in range(20)], 0.1, 0)) == 2
+
+
+def test_recovery_views_train_but_validation_reads_only_the_cavs_own_views(tmp_path: Path) -> None:
+    """Every third row seen from 1 m aside: all rows of the training routes train, the validation route
+    keeps its 8 own rows; shards from before recovery views (no ``view`` column) still load."""
+    from cmudrive.data.schema import COLUMNS, features
+    from cmudrive.data.shards import ShardWriter
+    from cmudrive.data.synthetic import synthetic_row
+
+    for k in range(3):
+        rng = np.random.default_rng([0, k])
+        rows = [synthetic_row(f"synthetic_{k}", i, rng) for i in range(12)]
+        for i in range(0, 12, 3):
+            rows[i]["view"] = [0.0, 1.0, 0.0]
+        writer = ShardWriter(tmp_path, f"synthetic_{k}", features().arrow_schema)
+        writer.write({c: [r[c] for r in rows] for c in COLUMNS})
+        writer.close()
+    train_rows, val_rows, _ = load_split(TrainConfig(data=str(tmp_path), out="unused", val_fraction=0.3))
+    assert len(train_rows) == 24 and len(val_rows) == 8
+    assert np.abs(np.asarray(val_rows["view"])).sum() == 0.0
+    assert recovery_rows(train_rows).sum() == 8
+    old = tmp_path / "old"
+    old.mkdir()
+    for f in tmp_path.glob("*.parquet"):  # the same shards without the column
+        pq.write_table(pq.read_table(f).drop_columns(["view"]), old / f.name)
+    _, old_val, _ = load_split(TrainConfig(data=str(old), out="unused", val_fraction=0.3))
+    assert len(old_val) == 12 and "view" not in old_val.column_names
 
 
 def test_standing_rows_are_thinned_and_every_moving_or_starting_row_kept() -> None:

@@ -148,8 +148,9 @@ def data_stats(
         console.print_json(json.dumps(stats))
         return
     console.print(
-        f"{stats['samples']} samples from {stats['routes']} routes ({stats['shards']} shards), "
-        f"{stats['bytes'] / 2**20:.1f} MiB on disk, {stats['bytes_per_sample']:.0f} bytes per sample; "
+        f"{stats['samples']} samples from {stats['routes']} routes ({stats['shards']} shards; "
+        f"{stats['recovery_views']} of them recovery views), {stats['bytes'] / 2**20:.1f} MiB on disk, "
+        f"{stats['bytes_per_sample']:.0f} bytes per sample; "
         f"communication sentence in {100 * stats['communication_share']:.1f} % of samples, "
         f"a V2V partner in {100 * stats['partner_share']:.1f} %"
     )

@@ -33,9 +33,11 @@ def dataset_stats(out: Path | str) -> dict[str, Any]:
         raise FileNotFoundError(f"{out}: no shard (*.parquet)")
     for f in files:
         verify_shard(f)
-    tables = [pq.read_table(f, columns=list(READ)) for f in files]
+    views = all("view" in pq.read_schema(f).names for f in files)  # older shards lack the column
+    tables = [pq.read_table(f, columns=[*READ, *(["view"] if views else [])]) for f in files]
     table = pa.concat_tables(tables)
     n = table.num_rows
+    view = table.column("view").combine_chunks().flatten().to_numpy().reshape(n, 3) if views and n else None
     counts = {c: Counter(table.column(c).to_pylist()) for c in COUNTED}
     comm = np.array([bool(s) for s in table.column("communication").to_pylist()], bool)
     path = _points(table.column("path"), 20) if n else np.zeros((0, 20, 2))
@@ -46,6 +48,7 @@ def dataset_stats(out: Path | str) -> dict[str, Any]:
         "shards": len(files),
         "routes": len(set(table.column("route_id").to_pylist())),
         "samples": n,
+        "recovery_views": int((np.abs(view).sum(axis=1) > 0).sum()) if view is not None else 0,
         "bytes": size,
         "bytes_per_sample": size / n if n else 0.0,
         "counts": {c: dict(sorted(v.items(), key=lambda kv: -kv[1])) for c, v in counts.items()},
