@@ -159,3 +159,19 @@ def test_stopping_an_evaluation_ends_its_workers_their_children_and_the_tracker(
     finally:
         if parent.poll() is None:
             parent.kill()
+
+
+def test_one_exported_omp_thread_limits_every_runtime_of_a_worker() -> None:
+    """A user who exports OMP_NUM_THREADS=1 beside other work gets one thread in MKL (torch's matrix
+    products), OpenBLAS and numba too, not the worker's share of the cores; a variable the user exported
+    is kept; with nothing exported every runtime gets the share."""
+    from cmudrive.bench.runner import worker_threads
+
+    assert worker_threads(2, {"OMP_NUM_THREADS": "1"}) == {
+        "OMP_NUM_THREADS": "1",
+        "MKL_NUM_THREADS": "1",
+        "OPENBLAS_NUM_THREADS": "1",
+        "NUMBA_NUM_THREADS": "1",
+    }
+    assert worker_threads(2, {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "3"})["MKL_NUM_THREADS"] == "3"
+    assert set(worker_threads(4, {}).values()) == {"4"}

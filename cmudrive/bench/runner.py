@@ -42,7 +42,7 @@ import threading
 import time
 import traceback
 from collections import Counter
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, replace
 from multiprocessing import get_context
 from pathlib import Path
@@ -337,6 +337,17 @@ class _Running:
         return record
 
 
+def worker_threads(threads: int, environ: Mapping[str, str]) -> dict[str, str]:
+    """The thread counts a worker sets (:data:`WORKER_THREAD_VARIABLES`): a variable the user exported is
+    kept; the others get the user's ``OMP_NUM_THREADS`` where it is exported, else ``threads`` (the
+    worker's share of the cores). One exported ``OMP_NUM_THREADS=1`` thus limits every runtime: torch's
+    matrix products run in MKL, which reads ``MKL_NUM_THREADS``; left at the share of 2 beside a second
+    busy process, its second thread spun at ~50 % of a core and the sgemm barriers waited for it, and
+    a V2V-VLA route took several times as long."""
+    share = environ.get("OMP_NUM_THREADS", str(threads))
+    return {name: environ.get(name, share) for name in WORKER_THREAD_VARIABLES}
+
+
 def limit_numba_threads() -> None:
     """Numba read ``NUMBA_NUM_THREADS`` when this module imported it, before a worker could set it: read the
     environment again (numba re-reads it whenever it compiles, and refuses a value other than the one it
@@ -366,8 +377,7 @@ def _worker(task: RouteTask, messages: Any, beat: Any, threads: int = 1, parent:
     share torch's libgomp and, with every core busy, a 3-CAV V2V-VLA tick took 485 ms instead of 31 ms."""
     if parent is not None:
         beat[2] = float(hold_descendants(parent))  # first: the guard must not inherit the limits below
-    for name in WORKER_THREAD_VARIABLES:
-        os.environ.setdefault(name, str(threads))
+    os.environ.update(worker_threads(threads, os.environ))
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # other OpenMP runtimes: sleep at once
     os.environ.setdefault("GOMP_SPINCOUNT", str(OMP_SPIN_COUNT))
     limit_numba_threads()  # starts numba's OpenMP runtime: after its settings
