@@ -14,6 +14,9 @@ its target points follow each CAV's progress along the sparse plan, advanced eve
 (``docs/architecture.md``): the rows collected must be the very rows the model is fed in closed loop, and
 the contract lives beside the model; ``model.row`` needs only ``data.schema`` below it: no circle.
 
+With ``recovery`` (``--recovery-views P``), a share of the sampled rows gets a second row of the same CAV
+sensed from a pose beside it, labelled back toward its path (``cmudrive.data.recovery``).
+
 Labels need the future (the path the CAV drives next, its positions 2.5 s on, the expert's target speed
 over the next 1.25 s for the language), so a sample tick is kept in memory, its images already encoded,
 until every CAV of it has driven ``PATH_REACH`` metres and ``LABEL_TICKS`` ticks further or left the world;
