@@ -336,8 +336,8 @@ def test_stats_count_the_views(with_views: datasets.Dataset, views_dir: Path, da
 
 
 def test_views_are_sensed_from_their_own_pose(with_views: datasets.Dataset) -> None:
-    """A view's camera differs from the CAV's own image of the same tick, and the view's BEV still draws
-    the ego box where a BEV draws it (the image centre is the view's pose)."""
+    """The farthest view's camera differs from the CAV's own image of the same tick (the road and its
+    markings moved sideways)."""
     own, views = _own_and_views(with_views)
     ds = with_views
     cav, tick = np.asarray(ds["cav"]), np.asarray(ds["tick"])
