@@ -23,7 +23,7 @@ import torch
 
 from cmudrive.data.schema import packed_to_rgb
 from cmudrive.model import V2VVLA
-from cmudrive.model.dataset import DrivingDataset, load_rows, recovery_rows, split_routes
+from cmudrive.model.dataset import DrivingDataset, expert_rows, load_rows, split_routes
 from cmudrive.model.train import TrainConfig
 
 Variant = Callable[[dict[str, Any]], dict[str, Any]]
@@ -38,7 +38,7 @@ def held_out_rows(
     route_of = np.asarray(ds["route_id"])
     split = TrainConfig(data=data, out="unused")  # cmudrive train's defaults: the same held-out routes
     routes = split_routes(sorted(set(route_of.tolist())), split.val_fraction, split.seed)
-    val = ds.select(np.flatnonzero(np.isin(route_of, routes) & ~recovery_rows(ds)))  # the CAVs' own views
+    val = ds.select(np.flatnonzero(np.isin(route_of, routes) & expert_rows(ds)))  # the expert's own views
     decoded = DrivingDataset(val)
     step = max(1, len(decoded) // limit)
     rows = [decoded[i] for i in range(0, len(decoded), step)][:limit]

@@ -8,16 +8,18 @@ import os
 from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
+from typing import Any, ClassVar
 
 import datasets
 import numpy as np
 import pytest
 
-from cmudrive.agents import Observations
+from cmudrive.agents import Agent, Observation, Observations, RouteSetup
 from cmudrive.agents.expert import ExpertAgent
-from cmudrive.bench.evaluator import EvalConfig, RouteHooks
+from cmudrive.bench.callbacks import RouteCallback, Step
+from cmudrive.bench.evaluator import EvalConfig, RouteHooks, evaluate_route
 from cmudrive.bench.manifest import SetupMismatchError
-from cmudrive.bench.records import STATUS_AGENT_CRASHED
+from cmudrive.bench.records import STATUS_AGENT_CRASHED, STATUS_SIM_CRASHED
 from cmudrive.bench.routes import CavSpec, RouteSpec, read_routes
 from cmudrive.bench.runner import ProgressCallback, RouteTask, run_task
 from cmudrive.data import (
@@ -25,6 +27,7 @@ from cmudrive.data import (
     BenchmarkRouteError,
     RecoveryViews,
     ShardJob,
+    ShardWriter,
     check_not_benchmark,
     collect,
     features,
@@ -32,10 +35,11 @@ from cmudrive.data import (
     shard_path,
     unpack_occupancy,
 )
-from cmudrive.data.collector import SAMPLE_EVERY
+from cmudrive.data.collector import SAMPLE_EVERY, RouteInfo, RowCollector
+from cmudrive.data.labels import plan_labels
 from cmudrive.data.recovery import moved, to_view, view_poses
 from cmudrive.maps import RoadMap
-from cmudrive.maps.coords import map_to_carla
+from cmudrive.maps.coords import map_to_carla, to_ego
 from cmudrive.sim.background import BackgroundConfig
 from cmudrive.sim.dynamics import Controls
 from cmudrive.sim.snapshot import Snapshot
@@ -361,3 +365,95 @@ def test_view_poses_and_the_moved_snapshot() -> None:
 def test_a_share_outside_zero_to_one_is_refused() -> None:
     with pytest.raises(ValueError, match="share must be in"):
         RecoveryViews(prob=1.5)
+
+
+# ---------------------------------------------------------------- closed-loop data: another agent drives
+class Drifter(Agent):
+    """Holds ~4 m/s and steers slightly right (CARLA's sign) for 5 s, then straight: it leaves its lane
+    to the right (~1 m in 10 s), where the expert would keep to the lane centre."""
+
+    observations: ClassVar[frozenset[Observation]] = frozenset({Observation.EGO_STATE})
+
+    def setup(self, route: RouteSetup) -> None:
+        pass
+
+    def run_step(self, obs: Observations) -> Controls:
+        n = len(obs.cav_index)
+        throttle = np.where(obs.speed < 4.0, 0.5, 0.0)
+        steer = np.full(n, 0.01 if obs.tick < 100 else 0.0)
+        return Controls(throttle=throttle, steer=steer, brake=np.zeros(n))
+
+
+class Poses(RouteCallback):
+    """Every CAV's pose at every tick, as the agent saw it."""
+
+    def __init__(self) -> None:
+        self.pose: dict[tuple[int, int], np.ndarray] = {}
+
+    def on_step(self, step: Step) -> None:
+        s = step.snapshot
+        for r, k in zip(step.rows, step.cav_index, strict=True):
+            self.pose[(int(k), step.tick)] = np.array([s.x[r], s.y[r], s.yaw[r], s.speed[r]])
+
+
+@pytest.fixture(scope="module")
+def drifted(mini: RoadMap, mini_net: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Any, Poses]:
+    """The drifter drives one CAV east on C-E for 10 s; the expert labels beside it."""
+    route = lane_route(mini, mini_net, "drift", [("CE_1", 5.0, 150.0)])
+    out = tmp_path_factory.mktemp("drift")
+    writer = ShardWriter(out, route.id, features().arrow_schema)
+    info = RouteInfo(route.id, "", route.weather, route.town, 1)
+    collector = RowCollector(info, writer, seed=0, labeller=ExpertAgent(), driver="drifter")
+    poses = Poses()
+    config = replace(EMPTY, tick_cap=200)
+    result = evaluate_route(route, Drifter, config, callbacks=[collector, poses])
+    assert result.status not in (STATUS_AGENT_CRASHED, STATUS_SIM_CRASHED), result.error
+    return load_shards(out), poses
+
+
+def test_closed_loop_rows_are_labelled_by_the_expert_not_the_driver(drifted: tuple[Any, Poses]) -> None:
+    """Wherever the drifter is, the path label starts on the lane centre (+-0.15 m) and leads along it
+    (+-0.3 m at 19 m); where it is more than 0.5 m right of the centre, the expert's controls steer left,
+    back to it, while the driver steered right or straight."""
+    ds, poses = drifted
+    assert len(ds) == 200 // SAMPLE_EVERY and set(ds["driver"]) == {"drifter"}
+    lane_y = poses.pose[(0, 0)][1]  # the CAV starts on the lane centre of the straight road
+    off = 0
+    for row in ds:
+        x, y, yaw, _ = poses.pose[(0, row["tick"])]
+        d = y - lane_y  # [m] left of the lane centre (the road runs along +x)
+        path = np.asarray(row["path"], np.float64)
+        centre = to_ego(np.array([[x, lane_y], [x + 19.0, lane_y]]), x, y, yaw)  # the lane, seen from the CAV
+        assert np.linalg.norm(path[0] - centre[0]) < 0.15, (row["tick"], d, path[0], centre[0])
+        assert np.linalg.norm(path[-1] - centre[1]) < 0.3, (row["tick"], d, path[-1], centre[1])
+        if d < -0.5:
+            off += 1
+            assert row["steer"] < -0.3, (row["tick"], d, row["steer"])  # left, back to the lane
+    assert off >= 10  # the drifter spent seconds beside its lane: those rows were checked
+
+
+def test_plan_labels_start_on_the_plan_and_roll_at_the_commanded_acceleration() -> None:
+    plan = np.stack([np.arange(40.0), np.zeros(40)], axis=1)  # straight along +x, 1 m apart
+    path, speed = plan_labels(plan, 3.3, 1.0, 0.0, 5.0, 0.0, 5.0)  # 1 m left of it, cruising
+    np.testing.assert_allclose(path[:, 1], -1.0, atol=1e-6)
+    np.testing.assert_allclose(path[:, 0], np.arange(20.0), atol=1e-5)
+    np.testing.assert_allclose(speed[:, 0], 5.0 * 0.25 * np.arange(1, 11), atol=1e-4)
+    _, braking = plan_labels(plan, 0.0, 0.0, 0.0, 10.0, -5.0, 0.0)  # stands after 2 s and 10 m
+    assert braking[-1, 0] == pytest.approx(10.0, abs=0.05) and braking[-1, 0] == braking[-2, 0]
+    _, starting = plan_labels(plan, 0.0, 0.0, 0.0, 0.0, 2.0, 3.0)  # 2 m/s^2 up to 3 m/s, then 3 m/s
+    assert starting[-1, 0] == pytest.approx(2.25 + 3.0 * 1.0, abs=0.15)
+    _, past_end = plan_labels(plan[:5], 0.0, 0.0, 0.0, 10.0, 0.0, 10.0)  # a short plan goes on straight
+    assert past_end[-1, 0] == pytest.approx(25.0, abs=1e-4) and abs(past_end[-1, 1]) < 1e-6
+
+
+def test_collect_with_another_driver_names_it_in_the_rows(
+    mini: RoadMap, mini_net: Path, tmp_path: Path
+) -> None:
+    route = lane_route(mini, mini_net, "pid", [("CE_1", 5.0, 80.0)])
+    config = replace(EMPTY, tick_cap=60)
+    summary = collect([route], tmp_path, InlineExecutor(), config, driver="pid")
+    assert summary.written == ["pid"], summary.failed
+    ds = load_shards(tmp_path)
+    assert set(ds["driver"]) == {"pid"} and len(ds) == 60 // SAMPLE_EVERY
+    run = json.loads((tmp_path / ".run.json").read_text())
+    assert run["setup"]["agent"] == "cmudrive.agents.pid:PidAgent"

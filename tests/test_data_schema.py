@@ -74,6 +74,7 @@ def rows(n: int) -> dict[str, list]:
         "tick": [5 * i for i in range(n)],
         "time": [0.25 * i for i in range(n)],
         "view": [[0.0, 0.0, 0.0], [0.0, 1.0, 0.1], [0.0, 0.0, 0.0]][:n],
+        "driver": ["expert", "v2v-vla", "expert"][:n],
         "camera": [image] * n,
         "occupancy": list(grids),
         "merged_occupancy": list(grids[::-1]),

@@ -12,7 +12,14 @@ import pytest
 
 from cmudrive.agents import Agent, AutopilotAgent, Observation, Observations, PidAgent, RouteSetup
 from cmudrive.bench import CavSpec, EvalConfig, LocalExecutor, RouteSpec, evaluate_route, run_evaluation
-from cmudrive.bench.records import STATUS_AGENT_CRASHED, STATUS_BLOCKED, STATUS_PERFECT
+from cmudrive.bench.callbacks import RouteCallback, RouteStart, Step
+from cmudrive.bench.records import (
+    STATUS_AGENT_CRASHED,
+    STATUS_BLOCKED,
+    STATUS_PERFECT,
+    STATUS_SIM_CRASHED,
+    RouteResult,
+)
 from cmudrive.maps import load_map
 from cmudrive.maps.coords import map_to_carla
 from cmudrive.sim.background import BackgroundConfig
@@ -216,3 +223,49 @@ def test_a_route_with_its_lights_off_shows_no_signal_and_charges_no_red_light() 
         reds[lights] = sum(len(c.infractions.get("red_light", [])) for c in result.cavs)
     assert "r" in seen["on"]
     assert seen["off"] <= {"o", "O"} and reds["off"] == 0
+
+
+class Watch(RouteCallback):
+    """Counts what it hears; raises in on_step at ``fail_at`` when given."""
+
+    def __init__(self, fail_at: int | None = None) -> None:
+        self.fail_at = fail_at
+        self.started: RouteStart | None = None
+        self.steps: list[tuple[int, int, float]] = []  # tick, active CAVs, CAV 0's throttle
+        self.ended: RouteResult | None = None
+
+    def on_route_start(self, start: RouteStart) -> None:
+        self.started = start
+
+    def on_step(self, step: Step) -> None:
+        if step.tick == self.fail_at:
+            raise RuntimeError(f"callback failure at tick {step.tick}")
+        assert step.snapshot.time == pytest.approx(step.tick * 0.05)
+        self.steps.append((step.tick, len(step.cav_index), float(step.controls.throttle[0])))
+
+    def on_route_end(self, result: RouteResult) -> None:
+        self.ended = result
+
+
+def test_callbacks_hear_every_tick_and_change_nothing() -> None:
+    """A callback hears the start (the privileged set-up, whatever the agent declared), every tick with
+    the agent's controls, and the final record; the route scores as it does without it."""
+    config = EvalConfig(background=EMPTY)
+    plain = evaluate_route(ring_route(), PidAgent, config)
+    watch = Watch()
+    watched = evaluate_route(ring_route(), PidAgent, config, callbacks=[watch])
+    assert watched.to_json() | {"wall_time": 0} == plain.to_json() | {"wall_time": 0}
+    assert watch.started is not None and watch.started.setup.road_map is not None
+    assert all(c.dense_route is not None for c in watch.started.setup.cavs)  # the PID agent gets none
+    assert [t for t, _, _ in watch.steps] == list(range(plain.ticks))
+    assert watch.steps[0][1] == 2 and watch.steps[0][2] > 0.0  # both CAVs, pulling away
+    assert watch.ended is watched
+
+
+def test_a_failing_callback_is_a_simulation_crash_not_the_agents() -> None:
+    watch = Watch(fail_at=7)
+    result = evaluate_route(ring_route(), PidAgent, EvalConfig(background=EMPTY), callbacks=[watch])
+    assert result.status == STATUS_SIM_CRASHED
+    assert all(c.status == STATUS_SIM_CRASHED for c in result.cavs)
+    assert result.error is not None and "callback failure at tick 7" in result.error
+    assert watch.ended is result and result.ticks == 7

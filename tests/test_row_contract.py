@@ -6,18 +6,19 @@ from __future__ import annotations
 
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import pytest
 
 from cmudrive.agents.base import Observations, RouteSetup, load_agent_class
 from cmudrive.agents.expert import ExpertAgent
+from cmudrive.bench.callbacks import RouteCallback, RouteStart, Step
 from cmudrive.bench.evaluator import EvalConfig, evaluate_route
 from cmudrive.bench.observe import ObservationBuilder
 from cmudrive.bench.records import STATUS_AGENT_CRASHED, STATUS_SIM_CRASHED
 from cmudrive.bench.routes import read_routes
-from cmudrive.data.collector import CollectingAgent, RouteInfo
+from cmudrive.data.collector import SAMPLE_EVERY, RouteInfo, RowCollector
 from cmudrive.data.schema import features, pack_occupancy
 from cmudrive.data.shards import ShardWriter, load_shards
 from cmudrive.maps import load_scenery
@@ -28,41 +29,39 @@ ROUTE = "smoke_01"  # downtown, 2 CAVs, rain: turns (target points move on), tra
 TICKS = 300
 
 
-class Twin(CollectingAgent):
-    """Collects as usual; beside it, the closed-loop agent (no model) gets every tick the observations the
+class Twin(RouteCallback):
+    """Beside the collector, the closed-loop agent (no model) gets every tick the observations the
     evaluator would give it, from the same snapshot, and builds its rows, kept for the sample ticks."""
 
-    def setup(self, route: RouteSetup) -> None:
-        super().setup(route)
-        self.agent: Any = load_agent_class("v2v-vla")()
-        self.agent.model = object()  # rows only: no checkpoint is loaded
+    def __init__(self, seed: int) -> None:
+        self.seed = seed
+        self.agent_rows: dict[tuple[int, int], tuple[dict[str, Any], np.ndarray]] = {}
+
+    def on_route_start(self, start: RouteStart) -> None:
+        route = start.setup
+        self.v2v: Any = cast(Any, load_agent_class("v2v-vla")())
+        self.v2v.model = object()  # rows only: no checkpoint is loaded
         plans = tuple(replace(c, dense_route=None) for c in route.cavs)  # what a non-privileged agent gets
-        self.agent.setup(RouteSetup(route.route_id, route.town, route.weather, route.dt, plans))
+        self.v2v.setup(RouteSetup(route.route_id, route.town, route.weather, route.dt, plans))
         assert route.road_map is not None
         self.agent_observer = ObservationBuilder(
-            type(self.agent).observations,
+            type(self.v2v).observations,
             len(route.cavs),
             get_weather(route.weather),
             load_scenery(route.road_map),
             rng=np.random.default_rng([self.seed, 1]),  # as the evaluator seeds its sensors
             road_map=route.road_map,
         )
-        self.agent_rows: dict[tuple[int, int], tuple[dict[str, Any], np.ndarray]] = {}
 
-    def run_step(self, obs: Observations) -> Any:
-        controls = super().run_step(obs)
-        snap = obs.snapshot
-        assert snap is not None
-        rows, index = snap.cav_rows()
-        order = {int(k): int(r) for r, k in zip(rows, index, strict=True)}
-        snap_rows = np.array([order[int(k)] for k in obs.cav_index], np.int64)
-        seen = self.agent_observer.build(snap, obs.tick, snap_rows, obs.cav_index, privileged=False)
-        built = self.agent.rows(seen)
+    def on_step(self, step: Step) -> None:
+        seen = self.agent_observer.build(
+            step.snapshot, step.tick, step.rows, step.cav_index, privileged=False
+        )
+        built = self.v2v.rows(seen)
         assert seen.merged_occupancy is not None
-        if obs.tick % self.sample_every == 0:
-            for a, k in enumerate(obs.cav_index):
-                self.agent_rows[(int(k), obs.tick)] = (built[a], pack_occupancy(seen.merged_occupancy[a]))
-        return controls
+        if step.tick % SAMPLE_EVERY == 0:
+            for a, k in enumerate(step.cav_index):
+                self.agent_rows[(int(k), step.tick)] = (built[a], pack_occupancy(seen.merged_occupancy[a]))
 
 
 @pytest.fixture(scope="module")
@@ -70,17 +69,12 @@ def collected(tmp_path_factory: pytest.TempPathFactory) -> tuple[Any, dict[tuple
     spec = next(s for s in read_routes(ROUTES / "smoke.xml") if s.id == ROUTE)
     out = tmp_path_factory.mktemp("rows")
     writer = ShardWriter(out, spec.id, features().arrow_schema)
-    made: list[Twin] = []
-
-    def make() -> Twin:
-        info = RouteInfo(spec.id, "", spec.weather, spec.town, len(spec.cavs))
-        made.append(Twin(ExpertAgent(), info, writer, seed=spec.seed))
-        return made[-1]
-
-    result = evaluate_route(spec, make, EvalConfig(tick_cap=TICKS))
+    info = RouteInfo(spec.id, "", spec.weather, spec.town, len(spec.cavs))
+    twin = Twin(spec.seed)
+    callbacks = [RowCollector(info, writer, seed=spec.seed), twin]
+    result = evaluate_route(spec, ExpertAgent, EvalConfig(tick_cap=TICKS), callbacks=callbacks)
     assert result.status not in (STATUS_AGENT_CRASHED, STATUS_SIM_CRASHED), result.error
-    made[0].finish()
-    return load_shards(out), made[0].agent_rows
+    return load_shards(out), twin.agent_rows
 
 
 def test_the_agent_builds_the_rows_collection_stores(collected: tuple[Any, dict]) -> None:

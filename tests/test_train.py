@@ -88,6 +88,40 @@ def test_recovery_views_train_but_validation_reads_only_the_cavs_own_views(tmp_p
     assert len(old_val) == 12 and "view" not in old_val.column_names
 
 
+def test_closed_loop_rows_from_another_folder_train_but_never_validate(tmp_path: Path) -> None:
+    """An expert collection from before views and drivers, and a closed-loop one on the same routes
+    (another driver, every row): together, every closed-loop row of the training routes trains, the
+    validation route keeps only its expert rows, and each folder's CAVs keep their own standing clocks."""
+    from cmudrive.data.schema import COLUMNS, features
+    from cmudrive.data.shards import ShardWriter
+    from cmudrive.data.synthetic import synthetic_row
+    from cmudrive.model.dataset import closed_loop_rows, load_rows
+
+    expert, learner = tmp_path / "expert", tmp_path / "learner"
+    for folder, driver in ((expert, "expert"), (learner, "v2v-vla")):
+        folder.mkdir()
+        for k in range(3):
+            rng = np.random.default_rng([0, k])
+            rows = [synthetic_row(f"synthetic_{k}", i, rng) for i in range(12)]
+            for r in rows:
+                r["driver"] = driver
+            writer = ShardWriter(folder, f"synthetic_{k}", features().arrow_schema)
+            writer.write({c: [r[c] for r in rows] for c in COLUMNS})
+            writer.close()
+    for f in expert.glob("*.parquet"):  # an older expert collection: no view, no driver
+        pq.write_table(pq.read_table(f).drop_columns(["view", "driver"]), f)
+    both = f"{expert},{learner}"
+    rows = load_rows(both)
+    assert len(rows) == 72 and closed_loop_rows(rows).sum() == 36
+    assert np.abs(np.asarray(rows["view"])).sum() == 0.0
+    alone = load_rows(str(learner))  # the same standing clocks as the folder read alone
+    np.testing.assert_array_equal(np.asarray(rows["standing"])[36:], np.asarray(alone["standing"]))
+    train_rows, val_rows, val_routes = load_split(TrainConfig(data=both, out="unused", val_fraction=0.3))
+    assert len(train_rows) == 48 and closed_loop_rows(train_rows).sum() == 24
+    assert len(val_rows) == 12 and set(val_rows["driver"]) == {"expert"}
+    assert set(val_rows["route_id"]) == set(val_routes)
+
+
 def test_standing_rows_are_thinned_and_every_moving_or_starting_row_kept() -> None:
     """standing_keep=0.25: a quarter of the rows standing still for 2.5 s, all others."""
     import datasets

@@ -10,6 +10,7 @@ Typical use::
 or in Python: ``read_routes`` -> ``run_evaluation(routes, agent, out, LocalExecutor(2))``.
 """
 
+from cmudrive.bench.callbacks import RouteCallback, RouteStart, Step
 from cmudrive.bench.criteria import CriteriaConfig, RouteCriteria
 from cmudrive.bench.evaluator import EvalConfig, RouteInputError, evaluate_route
 from cmudrive.bench.export import export_leaderboard
@@ -55,14 +56,17 @@ __all__ = [
     "LeaderboardExport",
     "LocalExecutor",
     "RayExecutor",
+    "RouteCallback",
     "RouteCriteria",
     "RouteInputError",
     "RouteResult",
     "RouteSelectionError",
     "RouteSpec",
     "RouteSpecError",
+    "RouteStart",
     "RunProgress",
     "ScenarioSpec",
+    "Step",
     "evaluate_route",
     "export_leaderboard",
     "read_routes",

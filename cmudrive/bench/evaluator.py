@@ -26,7 +26,7 @@ import sys
 import threading
 import time
 import traceback
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -38,10 +38,12 @@ from cmudrive.agents.base import (
     PROVIDED,
     Agent,
     Observation,
+    Observations,
     RouteSetup,
     check_observations,
     sparse_plan,
 )
+from cmudrive.bench.callbacks import RouteCallback, RouteStart, Step
 from cmudrive.bench.compile_clock import CompileClock
 from cmudrive.bench.criteria import CriteriaConfig, RouteCriteria
 from cmudrive.bench.metrics import comfort_score, route_result
@@ -140,17 +142,23 @@ def evaluate_route(
     make_agent: Callable[[], Agent],
     config: EvalConfig | None = None,
     hooks: RouteHooks | None = None,
+    callbacks: Sequence[RouteCallback] = (),
 ) -> RouteResult:
     """Run one route to the end and score it (see the module docstring for what is raised). Time that
-    numba spends compiling or loading kernels is not charged to the agent (``compile_clock``)."""
+    numba spends compiling or loading kernels is not charged to the agent (``compile_clock``).
+    ``callbacks`` watch the route (:mod:`cmudrive.bench.callbacks`)."""
     config = config or EvalConfig()
     hooks = hooks or RouteHooks()
     with CompileClock(hooks.enter, lambda: hooks.current):
-        return _run_route(spec, make_agent, config, hooks)
+        return _run_route(spec, make_agent, config, hooks, tuple(callbacks))
 
 
 def _run_route(
-    spec: RouteSpec, make_agent: Callable[[], Agent], config: EvalConfig, hooks: RouteHooks
+    spec: RouteSpec,
+    make_agent: Callable[[], Agent],
+    config: EvalConfig,
+    hooks: RouteHooks,
+    callbacks: tuple[RouteCallback, ...],
 ) -> RouteResult:
     started = time.perf_counter()
     try:
@@ -190,12 +198,20 @@ def _run_route(
             rng=np.random.default_rng([spec.seed, 1]),  # sensors' own stream: traffic is unchanged
             road_map=road_map,
         )
-        loop = _Loop(world, criteria, agent, observer, config, recorder, hooks, spec, scenarios, actors)
+        loop = _Loop(
+            world, criteria, agent, observer, config, recorder, hooks, spec, scenarios, actors, callbacks
+        )
         try:
-            error = _drive(loop, scenarios, criteria, _setup(spec, road_map, routes, cav_ids, privileged))
+            setups = (
+                _setup(spec, road_map, routes, cav_ids, privileged),
+                _setup(spec, road_map, routes, cav_ids, True),  # what callbacks see
+            )
+            error = _drive(loop, scenarios, criteria, *setups)
             result = _final_result(spec, routes, loop, recorder, config, error)
             if hooks.partial is not None:  # final: a destroy() hung past the watchdog keeps these scores
                 hooks.partial(result)
+            for callback in callbacks:
+                callback.on_route_end(result)
         finally:
             cleanup_error = _destroy(agent, config.step_timeout, hooks)
     result.cleanup_error = cleanup_error
@@ -203,11 +219,19 @@ def _run_route(
     return result
 
 
-def _drive(loop: _Loop, scenarios: ScenarioManager, criteria: RouteCriteria, setup: RouteSetup) -> str | None:
-    """The agent's setup and the route's ticks; the traceback when the agent or the simulation crashed
-    (the CAVs still running get that status), else None."""
+def _drive(
+    loop: _Loop,
+    scenarios: ScenarioManager,
+    criteria: RouteCriteria,
+    setup: RouteSetup,
+    privileged_setup: RouteSetup,
+) -> str | None:
+    """The agent's setup, the callbacks' start and the route's ticks; the traceback when the agent or the
+    simulation (a callback included) crashed (the CAVs still running get that status), else None."""
     try:
         loop.setup(setup)
+        for callback in loop.callbacks:
+            callback.on_route_start(RouteStart(loop.spec, privileged_setup, loop.agent))
         loop.run()
         scenarios.finish()  # scenario actors leave, blocked tests resume (before the world closes)
     except AgentCrash:
@@ -313,8 +337,10 @@ class _Loop:
         spec: RouteSpec,
         scenarios: ScenarioManager | None = None,
         actors: RouteActors | None = None,
+        callbacks: tuple[RouteCallback, ...] = (),
     ) -> None:
         self.world, self.criteria, self.agent = world, criteria, agent
+        self.callbacks = callbacks
         self.scenarios = scenarios or ScenarioManager([], [], [])
         self.actors = actors
         self.observer, self.config, self.recorder = observer, config, recorder
@@ -351,7 +377,9 @@ class _Loop:
         snap = world.snapshot()
         for tick in range(self.config.tick_cap):
             rows, index = _active_cavs(snap, world)
-            controls = self._agent_step(snap, tick, rows, index)
+            controls, obs = self._agent_step(snap, tick, rows, index)
+            for callback in self.callbacks:
+                callback.on_step(Step(tick, obs.time, snap, rows, index, obs, controls, self.agent))
             self.scenarios.update(snap)  # scripted actors move before the world ticks
             if self.actors is not None:
                 self.actors.update(DT)  # and so do the route's own actors
@@ -371,7 +399,9 @@ class _Loop:
                 return
         criteria.end_route(STATUS_TICK_CAP)
 
-    def _agent_step(self, snap: Snapshot, tick: int, rows: np.ndarray, index: np.ndarray) -> Controls:
+    def _agent_step(
+        self, snap: Snapshot, tick: int, rows: np.ndarray, index: np.ndarray
+    ) -> tuple[Controls, Observations]:
         obs = self.observer.build(snap, tick, rows, index, self.privileged, self._requested_for(index))
         self.hooks.enter("agent")
         try:
@@ -392,7 +422,7 @@ class _Loop:
         except ControlError as exc:
             raise AgentCrash(f"run_step returned unusable controls at tick {tick}: {exc}") from exc
         self.requested = self._check_partners(requested, index, tick)
-        return controls
+        return controls, obs
 
     def _check_partners(self, requested: object, index: np.ndarray, tick: int) -> np.ndarray | None:
         """The agent's named partners as a full (K,) table by CAV index (-1: default), or None."""

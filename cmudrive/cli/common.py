@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import json
 import os
 import warnings
 from collections.abc import Iterator
@@ -80,6 +81,22 @@ def read_specs(
         fail(ValueError(f"{path}: no route to run" + (" (every route is invalid)" if invalid else "")))
     extra_dirs = tuple(str(d.resolve()) for d in town_dir or ())
     return path, [dataclasses.replace(s, town_dirs=s.town_dirs + extra_dirs) for s in specs]
+
+
+def agent_options(pairs: list[str] | None, checkpoint: Path | None) -> dict[str, Any]:
+    """``--agent-option KEY=VALUE`` pairs (VALUE as JSON when it parses) and ``--checkpoint``."""
+    options: dict[str, Any] = {}
+    for pair in pairs or []:
+        key, sep, value = pair.partition("=")
+        if not sep or not key.strip().isidentifier():
+            fail(ValueError(f"--agent-option {pair!r}: expected KEY=VALUE with KEY a Python identifier"))
+        try:
+            options[key.strip()] = json.loads(value)
+        except json.JSONDecodeError:
+            options[key.strip()] = value
+    if checkpoint is not None:
+        options["checkpoint"] = str(checkpoint.resolve())
+    return options
 
 
 def route_executor(executor: str, workers: int | None, ray_address: str | None) -> Any:
@@ -193,4 +210,18 @@ TickCap = Annotated[int, typer.Option(min=1, help="ticks per route at most (20 p
 TownDirs = Annotated[
     list[Path] | None,
     typer.Option(help="folder of <town>.net.xml networks, searched after the route file's own folder"),
+]
+Checkpoint = Annotated[
+    Path | None,
+    typer.Option(
+        help="model checkpoint directory, passed to the agent's constructor as checkpoint=PATH "
+        "(v2v-vla: default the committed cmudrive/assets/models/v2v-vla-tiny-no-speed)"
+    ),
+]
+AgentOptions = Annotated[
+    list[str] | None,
+    typer.Option(
+        help="KEY=VALUE passed to the agent's constructor, repeatable; VALUE is read as JSON when it "
+        'parses (5, false, "own"), else as a string (v2v-vla: --agent-option partner_requests=false)'
+    ),
 ]

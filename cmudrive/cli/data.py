@@ -10,12 +10,15 @@ import typer
 from rich.table import Table
 
 from cmudrive.cli.common import (
+    AgentOptions,
+    Checkpoint,
     Executor,
     RayAddress,
     RoutesSubset,
     TickCap,
     TownDirs,
     Workers,
+    agent_options,
     console,
     err_console,
     fail,
@@ -51,7 +54,7 @@ def data_collect(
     ] = None,
     tick_cap: TickCap = 4000,
     step_timeout: Annotated[
-        float, typer.Option(help="seconds the expert and sensors may take per step; a hung worker is killed")
+        float, typer.Option(help="seconds the driver may take per step; a hung worker is killed")
     ] = 10.0,
     allow_benchmark_routes: Annotated[
         bool, typer.Option(help="collect on routes of cmudrive220/cmudrive44 too (never for training data)")
@@ -65,9 +68,20 @@ def data_collect(
             "labelled back toward its path (docs/data.md, 'Recovery views')",
         ),
     ] = 0.0,
+    driver: Annotated[
+        str,
+        typer.Option(
+            help="the agent that drives: expert (default), a bundled one (v2v-vla, ...) or "
+            "package.module:Class; another than the expert drives while the expert labels the states it "
+            "reaches (closed-loop data, DAgger; docs/data.md)"
+        ),
+    ] = "expert",
+    checkpoint: Checkpoint = None,
+    agent_option: AgentOptions = None,
     town_dir: TownDirs = None,
 ) -> None:
-    """Run the expert on the routes and save one sample per active CAV every 5th tick (docs/data.md)."""
+    """Drive the routes (the expert, or --driver with the expert labelling) and save one sample per active
+    CAV every 5th tick (docs/data.md)."""
     from rich.markup import escape
 
     from cmudrive.bench.evaluator import EvalConfig
@@ -77,7 +91,11 @@ def data_collect(
 
     path, specs = read_specs(routes, town_dir, limit_routes, subset=routes_subset)
     try:
-        config = EvalConfig(tick_cap=tick_cap, step_timeout=step_timeout)
+        config = EvalConfig(
+            tick_cap=tick_cap,
+            step_timeout=step_timeout,
+            agent_options=agent_options(agent_option, checkpoint),
+        )
     except ValueError as exc:
         fail(ValueError(f"--step-timeout / --tick-cap: {exc}"))
     runner = route_executor(executor, workers, ray_address)
@@ -115,6 +133,7 @@ def data_collect(
                     on_progress=on_progress,
                     routes_file=path,
                     recovery=RecoveryViews(prob=recovery_views),
+                    driver=driver,
                 )
         except KeyboardInterrupt:
             err_console.print(f"interrupted: finished shards are in {out}; continue with --resume")

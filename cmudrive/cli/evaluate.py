@@ -3,19 +3,21 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
 from typing import Annotated, Any
 
 import typer
 
 from cmudrive.cli.common import (
+    AgentOptions,
+    Checkpoint,
     Executor,
     RayAddress,
     RoutesSubset,
     TickCap,
     TownDirs,
     Workers,
+    agent_options,
     console,
     err_console,
     fail,
@@ -25,22 +27,6 @@ from cmudrive.cli.common import (
     warnings_to_stderr,
 )
 from cmudrive.cli.results import print_results
-
-
-def _agent_options(pairs: list[str] | None, checkpoint: Path | None) -> dict[str, Any]:
-    """``--agent-option KEY=VALUE`` pairs (VALUE as JSON when it parses) and ``--checkpoint``."""
-    options: dict[str, Any] = {}
-    for pair in pairs or []:
-        key, sep, value = pair.partition("=")
-        if not sep or not key.strip().isidentifier():
-            fail(ValueError(f"--agent-option {pair!r}: expected KEY=VALUE with KEY a Python identifier"))
-        try:
-            options[key.strip()] = json.loads(value)
-        except json.JSONDecodeError:
-            options[key.strip()] = value
-    if checkpoint is not None:
-        options["checkpoint"] = str(checkpoint.resolve())
-    return options
 
 
 def _leaderboard_agent(agent: str, config: Any) -> tuple[str, Any]:
@@ -71,20 +57,8 @@ def evaluate(
             "CAV (--agent-option conf=... is what its setup() gets)"
         ),
     ] = "expert",
-    checkpoint: Annotated[
-        Path | None,
-        typer.Option(
-            help="model checkpoint directory, passed to the agent's constructor as checkpoint=PATH "
-            "(v2v-vla: default the committed cmudrive/assets/models/v2v-vla-tiny-no-speed)"
-        ),
-    ] = None,
-    agent_option: Annotated[
-        list[str] | None,
-        typer.Option(
-            help="KEY=VALUE passed to the agent's constructor, repeatable; VALUE is read as JSON when it "
-            'parses (5, false, "own"), else as a string (v2v-vla: --agent-option partner_requests=false)'
-        ),
-    ] = None,
+    checkpoint: Checkpoint = None,
+    agent_option: AgentOptions = None,
     out: Annotated[Path, typer.Option(help="output folder")] = Path("out/eval"),
     workers: Workers = None,
     resume: Annotated[
@@ -158,7 +132,7 @@ def evaluate(
             step_timeout=step_timeout,
             record_dir=out / "logs" if record else None,
             sensors=sensors,
-            agent_options=_agent_options(agent_option, checkpoint),
+            agent_options=agent_options(agent_option, checkpoint),
         )
     except ValueError as exc:
         fail(ValueError(f"--step-timeout / --tick-cap: {exc}"))

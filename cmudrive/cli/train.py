@@ -14,7 +14,13 @@ from cmudrive.cli.common import (
 
 
 def train_model(
-    data: Annotated[Path, typer.Option(help="dataset folder of <route>.parquet shards (data collect)")],
+    data: Annotated[
+        str,
+        typer.Option(
+            help="dataset folder of <route>.parquet shards (data collect), or several separated by commas "
+            "(an expert collection and closed-loop ones on the same routes; docs/model.md, 'DAgger')"
+        ),
+    ],
     out: Annotated[Path, typer.Option(help="run folder: checkpoints, metrics.jsonl, tensorboard/, model/")],
     config: Annotated[str, typer.Option(help="model configuration: tiny, small, internvl2-1b")] = "tiny",
     baseline: Annotated[
@@ -104,7 +110,7 @@ def train_model(
         torch.set_num_threads(threads)
     try:
         cfg = TrainConfig(
-            data=str(data),
+            data=data,
             out=str(out),
             model=config,
             cooperative=not baseline,

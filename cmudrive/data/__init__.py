@@ -7,12 +7,13 @@ per route, with waypoint, control and language labels (``docs/data.md``).
 """
 
 from cmudrive.data.collect import BenchmarkRouteError, CollectSummary, ShardJob, check_not_benchmark, collect
-from cmudrive.data.collector import SAMPLE_EVERY, CollectingAgent, RouteInfo
+from cmudrive.data.collector import SAMPLE_EVERY, RouteInfo, RowCollector
 from cmudrive.data.labels import (
     PATH_POINTS,
     PATH_SPACING,
     SPEED_POINTS,
     SPEED_STEP_TICKS,
+    plan_labels,
     waypoint_labels,
 )
 from cmudrive.data.language import Language, LanguageInputs, describe
@@ -37,11 +38,11 @@ __all__ = [
     "SPEED_STEP_TICKS",
     "BenchmarkRouteError",
     "CollectSummary",
-    "CollectingAgent",
     "Language",
     "LanguageInputs",
     "RecoveryViews",
     "RouteInfo",
+    "RowCollector",
     "ShardError",
     "ShardJob",
     "ShardWriter",
@@ -51,6 +52,7 @@ __all__ = [
     "features",
     "load_shards",
     "pack_occupancy",
+    "plan_labels",
     "shard_complete",
     "shard_path",
     "shard_paths",

@@ -1,11 +1,14 @@
-"""Collect a dataset: the expert on many routes, one Parquet shard per route (``cmudrive data collect``).
+"""Collect a dataset: an agent drives many routes, the expert labels, one Parquet shard per route
+(``cmudrive data collect``).
 
 Routes run through the benchmark's own runner (``cmudrive.bench.runner``: a fresh worker process per route
-with the watchdog, or Ray tasks); in each worker a :class:`ShardJob` runs the ordinary route loop with a
-:class:`~cmudrive.data.collector.CollectingAgent` around the expert and renames the route's shard into place
-when the route has run to its end. A route that crashes (the simulation or the expert raised, the worker
-died) leaves no shard, only its record in ``DIR/.routes/`` with the error, and the other routes go on;
-``resume`` runs exactly the routes without a complete shard.
+with the watchdog, or Ray tasks); in each worker a :class:`ShardJob` runs the ordinary route loop with the
+driving agent (the expert by default; ``--driver v2v-vla --checkpoint DIR`` for closed-loop data) and a
+:class:`~cmudrive.data.collector.RowCollector` callback, which renames the route's shard into place when
+the route has run to its end. A route that crashes (the simulation, the driver or the expert raised, the
+worker died) leaves no shard, only its record in ``DIR/.routes/`` with the error, and the other routes go
+on; ``resume`` runs exactly the routes without a complete shard. A driver's collision or time-out is no
+crash: the route has run, and its rows are kept.
 
 Training data must not come from the benchmark: :func:`check_not_benchmark` refuses routes whose id or
 scenario place is one of ``cmudrive220``'s (``cmudrive44`` is a subset of it) unless told otherwise.
@@ -20,7 +23,7 @@ from pathlib import Path
 
 import pyarrow as pa
 
-from cmudrive.agents.base import Agent
+from cmudrive.agents.base import BUNDLED_AGENTS, Agent
 from cmudrive.agents.expert import ExpertAgent
 from cmudrive.bench.evaluator import EvalConfig, RouteHooks, evaluate_route
 from cmudrive.bench.manifest import run_setup, start_run
@@ -35,12 +38,13 @@ from cmudrive.bench.runner import (
     load_records,
     write_json_atomic,
 )
-from cmudrive.data.collector import SAMPLE_EVERY, CollectingAgent, RouteInfo
+from cmudrive.data.collector import SAMPLE_EVERY, RouteInfo, RowCollector
 from cmudrive.data.recovery import RecoveryViews
-from cmudrive.data.schema import features
+from cmudrive.data.schema import EXPERT_DRIVER, features
 from cmudrive.data.shards import MANIFEST, RECORDS_DIR, ShardWriter, shard_complete, shard_path
 
-EXPERT = "cmudrive.agents.expert:ExpertAgent"
+EXPERT = BUNDLED_AGENTS["expert"]
+BUNDLED = {path: name for name, path in BUNDLED_AGENTS.items()}  # class path -> short name
 BENCHMARK_SETS = ("cmudrive220",)  # cmudrive44's routes are cmudrive220 routes
 SAME_PLACE = 30.0  # [m] scenario triggers of one type closer than this are one place (the generator's rule)
 CRASHED = (STATUS_AGENT_CRASHED, STATUS_SIM_CRASHED)
@@ -52,13 +56,14 @@ class BenchmarkRouteError(ValueError):
 
 @dataclass(frozen=True)
 class ShardJob:
-    """Runs one route with the collecting agent in a worker and writes its shard (a ``RouteJob``)."""
+    """Runs one route with the row collector in a worker and writes its shard (a ``RouteJob``)."""
 
     out: str
     schema: pa.Schema  # features(sensors.occupancy).arrow_schema, built where datasets is imported
     sample_every: int = SAMPLE_EVERY
     sensors: SensorConfig = field(default_factory=SensorConfig)
     recovery: RecoveryViews = field(default_factory=RecoveryViews)
+    driver: str = EXPERT  # the driving agent's class path (the task's agent); not the expert: it labels
 
     def __call__(
         self,
@@ -75,29 +80,22 @@ class ShardJob:
             num_cavs=len(spec.cavs),
         )
         writer = ShardWriter(Path(self.out), spec.id, self.schema)
-        made: list[CollectingAgent] = []
-
-        def make() -> CollectingAgent:
-            expert = make_agent()
-            if not isinstance(expert, ExpertAgent):
-                raise TypeError(f"data collection needs the ExpertAgent, got {type(expert).__name__}")
-            made.append(
-                CollectingAgent(
-                    expert, info, writer, self.sample_every, self.sensors, spec.seed, self.recovery
-                )
-            )
-            return made[0]
-
+        closed_loop = self.driver != EXPERT
+        collector = RowCollector(
+            info,
+            writer,
+            self.sample_every,
+            self.sensors,
+            spec.seed,
+            self.recovery,
+            labeller=ExpertAgent() if closed_loop else None,
+            driver=BUNDLED.get(self.driver, self.driver) if closed_loop else EXPERT_DRIVER,
+        )
         try:
-            result = evaluate_route(spec, make, config, hooks=hooks)
-            if result.status not in CRASHED and made:
-                made[0].finish()
-            else:
-                writer.abort()
+            return evaluate_route(spec, make_agent, config, hooks=hooks, callbacks=[collector])
         except BaseException:
             writer.abort()
             raise
-        return result
 
 
 def check_not_benchmark(specs: Sequence[RouteSpec], benchmark: Sequence[RouteSpec] | None = None) -> None:
@@ -152,12 +150,16 @@ def collect(
     on_progress: ProgressCallback | None = None,
     routes_file: Path | None = None,
     recovery: RecoveryViews | None = None,
+    driver: str = "expert",
 ) -> CollectSummary:
     """Collect shards for ``routes`` into ``out`` (module docstring). ``on_result(record, shard_written)``
     hears of every route as it finishes. Without ``resume``, ``out`` must hold no shard yet; with it, the
     setup must be the one that wrote them (``OUT/.run.json``, ``bench/manifest.py``); ``routes_file``,
-    where the routes came from, is recorded there."""
+    where the routes came from, is recorded there. ``driver``: the agent that drives (a bundled name or
+    ``package.module:Class``, its constructor's keywords in ``config.agent_options``); other than the
+    expert, the expert labels the states it reaches (closed-loop data, docs/data.md)."""
     check_routes(routes)
+    driver = BUNDLED_AGENTS.get(driver, driver)
     ids = [spec.id for spec in routes]
     if not allow_benchmark:
         check_not_benchmark(routes)
@@ -173,14 +175,14 @@ def collect(
     job_settings: dict[str, object] = {"sample_every": sample_every}
     if recovery.prob > 0.0:  # a run without views keeps the setup (and resumability) of older runs
         job_settings["recovery_views"] = asdict(recovery)
-    setup = run_setup("collect", EXPERT, config, job=job_settings)
+    setup = run_setup("collect", driver, config, job=job_settings)
     hashes = {spec.id: route_sha256(spec) for spec in routes}
     kept = load_records(out / RECORDS_DIR, done)
     settings = {"executor": type(executor).__name__, "workers": getattr(executor, "workers", None)}
     run = start_run(out, setup, hashes, resume, kept, len(done), settings, routes_file, MANIFEST)
     schema = features(config.sensors.occupancy).arrow_schema
-    job = ShardJob(str(out.resolve()), schema, sample_every, config.sensors, recovery)
-    tasks = [RouteTask(s, EXPERT, config, job=job) for s in routes if s.id not in done]
+    job = ShardJob(str(out.resolve()), schema, sample_every, config.sensors, recovery, driver)
+    tasks = [RouteTask(s, driver, config, job=job) for s in routes if s.id not in done]
     summary = CollectSummary(skipped=[i for i in ids if i in done])
     for result in executor.run(tasks, on_progress):
         result.provenance = run.stamp(hashes[result.route_id])

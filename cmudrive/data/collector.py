@@ -1,11 +1,18 @@
-"""The collecting agent: the privileged expert drives, and every ``sample_every``-th tick each active CAV
+"""The row collector: while an agent drives a route, every ``sample_every``-th tick each active CAV
 becomes one dataset row (inputs, expert labels, language), written to the route's shard.
 
-It runs inside the ordinary evaluation loop (``cmudrive.bench.evaluator.evaluate_route``) as the route's
-agent: it declares only ``PRIVILEGED`` (what the expert reads) and computes the sensors itself, through the
-evaluator's own :class:`~cmudrive.bench.observe.ObservationBuilder`, on sample ticks only: the camera,
-visibility, occupancy and V2V merge cost nothing on the other four ticks of five. V2V uses the ideal link
-(no latency, loss or pose noise) and the default partners (the closest CAV in front).
+It is a step callback of the ordinary evaluation loop (``cmudrive.bench.evaluator.evaluate_route``,
+:mod:`cmudrive.bench.callbacks`), not an agent: any agent drives. Where the privileged expert drives (the
+default dataset), its own decisions are the labels. Where another agent drives (closed-loop data, DAgger:
+``cmudrive data collect --driver v2v-vla``), a second :class:`~cmudrive.agents.expert.ExpertAgent`, the
+labeller, decides every tick beside it on the state the driver reached, and labels the rows: what the
+expert would do there, never what the driver did. The ``driver`` column says who drove.
+
+The collector computes the rows' sensors itself, through the evaluator's own
+:class:`~cmudrive.bench.observe.ObservationBuilder`, on sample ticks only: the camera, visibility,
+occupancy and V2V merge cost nothing on the other four ticks of five. V2V uses the ideal link (no
+latency, loss or pose noise) and the default partners (the closest CAV in front), whatever the driver's
+link does.
 
 The model's input columns (camera, merged BEV, speed, target points, other CAVs) come from
 :class:`cmudrive.model.row.RowBuilder`, the row contract the closed-loop agent builds its rows with too;
@@ -20,24 +27,35 @@ sensed from a pose beside it, labelled back toward its path (``cmudrive.data.rec
 Labels need the future (the path the CAV drives next, its positions 2.5 s on, the expert's target speed
 over the next 1.25 s for the language), so a sample tick is kept in memory, its images already encoded,
 until every CAV of it has driven ``PATH_REACH`` metres and ``LABEL_TICKS`` ticks further or left the world;
-then its rows are computed and written as a row group.
+then its rows are computed and written as a row group. Rows of another driver take their path and speed
+waypoints from the labeller's plan at the sample tick instead (:func:`cmudrive.data.labels.plan_labels`:
+the driver's future is not the expert's); their language still reads the labeller's future target speeds.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import Any, cast
 
 import numpy as np
 
-from cmudrive.agents.base import Agent, Observation, Observations, RouteSetup
+from cmudrive.agents.base import Observation, Observations
 from cmudrive.agents.expert import ExpertAgent, Reason
 from cmudrive.agents.expert.agent import ExpertDecision
+from cmudrive.bench.callbacks import RouteCallback, RouteStart, Step
 from cmudrive.bench.observe import ObservationBuilder, SensorConfig, relative_poses
-from cmudrive.data.labels import PATH_POINTS, PATH_SPACING, SPEED_POINTS, SPEED_STEP_TICKS, waypoint_labels
+from cmudrive.bench.records import STATUS_AGENT_CRASHED, STATUS_SIM_CRASHED, RouteResult
+from cmudrive.data.labels import (
+    PATH_POINTS,
+    PATH_SPACING,
+    SPEED_POINTS,
+    SPEED_STEP_TICKS,
+    plan_labels,
+    waypoint_labels,
+)
 from cmudrive.data.language import Language, LanguageInputs, describe
 from cmudrive.data.recovery import RecoveryViews, moved, to_view, view_poses
-from cmudrive.data.schema import COLUMNS, pack_occupancy
+from cmudrive.data.schema import COLUMNS, EXPERT_DRIVER, pack_occupancy
 from cmudrive.data.shards import ROW_GROUP, ShardWriter
 from cmudrive.maps import RoadMap, load_scenery
 from cmudrive.model import row  # the module, not its names: cmudrive.model.row imports cmudrive.data
@@ -120,38 +138,56 @@ class _Trace:
             self.plan[int(k)] = decision.path[a]
 
 
-class CollectingAgent(Agent):
-    """Wraps the :class:`ExpertAgent`: it drives; this records (module docstring)."""
-
-    observations: ClassVar[frozenset[Observation]] = frozenset({Observation.PRIVILEGED})
+class RowCollector(RouteCallback):
+    """Records rows of the route it watches (module docstring); a step callback of the evaluation loop."""
 
     def __init__(
         self,
-        expert: ExpertAgent,
         info: RouteInfo,
         writer: ShardWriter,
         sample_every: int = SAMPLE_EVERY,
         sensors: SensorConfig | None = None,
         seed: int = 0,
         recovery: RecoveryViews | None = None,
+        labeller: ExpertAgent | None = None,
+        driver: str = EXPERT_DRIVER,
     ) -> None:
+        """``labeller``: the expert that labels the rows while another agent drives (closed-loop data);
+        None: the driving agent is the expert and its own decisions are the labels. ``driver``: the
+        name stored in the rows' ``driver`` column."""
         if sample_every < 1:
             raise ValueError(f"sample_every must be >= 1 tick, got {sample_every}")
-        self.expert, self.info, self.writer = expert, info, writer
+        self.info, self.writer = info, writer
         self.sample_every = sample_every
         self.sensor_config = sensors or SensorConfig()
         self.seed = seed
         self.recovery = recovery or RecoveryViews()
+        self.labeller, self.driver = labeller, driver
         self.view_rng = np.random.default_rng([seed, 3])
         self.pending: list[_SampleTick] = []
         self.buffer: dict[str, list[Any]] = {k: [] for k in COLUMNS}
         self.active = np.zeros(info.num_cavs, bool)
         self.samples = 0
 
-    # ------------------------------------------------------------------ agent interface
-    def setup(self, route: RouteSetup) -> None:
-        self.expert.setup(route)
-        assert route.road_map is not None  # the expert's setup refuses a set-up without it
+    # ------------------------------------------------------------------ callback interface
+    def on_route_start(self, start: RouteStart) -> None:
+        route = start.setup
+        assert route.road_map is not None  # callbacks get the privileged set-up
+        if self.labeller is None and not isinstance(start.agent, ExpertAgent):
+            raise TypeError(
+                f"route {self.info.route_id}: {type(start.agent).__name__} drives and no expert labels: "
+                "give the collector a labeller"
+            )
+        if self.labeller is not None:
+            self.labeller.setup(route)
+            self.labeller_observer = ObservationBuilder(
+                frozenset({Observation.PRIVILEGED}),
+                len(route.cavs),
+                get_weather(route.weather),
+                load_scenery(route.road_map),
+                config=self.sensor_config,
+                road_map=route.road_map,
+            )
         self.road_map: RoadMap = route.road_map
         self.observer = ObservationBuilder(
             SENSORS,
@@ -175,64 +211,40 @@ class CollectingAgent(Agent):
                 road_map=self.road_map,
             )
         self.trace = _Trace(len(route.cavs))
-        self._warm_up(route)
 
-    def _warm_up(self, route: RouteSetup) -> None:
-        """Sense once at set-up, on a snapshot of the CAVs at their starts: the sensors' numba kernels
-        load (or, in a fresh install, compile for a minute) within the set-up's time limit rather than in
-        the first sample tick's ``run_step``, whose limit is seconds."""
-        starts = [c.dense_route for c in route.cavs]
-        k = len(starts)
-        snap = Snapshot.from_rows(
-            0,
-            0.0,
-            np.array([], str),
-            ids=np.array([f"cav{j}" for j in range(k)]),
-            x=np.array([r.xy[0, 0] for r in starts if r is not None]),
-            y=np.array([r.xy[0, 1] for r in starts if r is not None]),
-            yaw=np.array([r.heading[0] for r in starts if r is not None]),
-            speed=np.zeros(k),
-            role=np.zeros(k, np.int8),
-            kind=np.zeros(k, np.int8),
-            length=np.full(k, 4.9),
-            width=np.full(k, 2.1),
-        )
-        warm = ObservationBuilder(
-            SENSORS,
-            k,
-            self.observer.weather,
-            self.observer.scenery,
-            config=self.sensor_config,
-            road_map=self.road_map,
-        )
-        warm.camera = self.observer.camera  # the meshes are built once
-        warm.build(snap, 0, np.arange(k), np.arange(k), privileged=True)
-
-    def run_step(self, obs: Observations) -> Controls:
-        controls = self.expert.run_step(obs)
-        decision = self.expert.decision
-        assert decision is not None and obs.snapshot is not None
-        self.trace.add(obs.tick, obs, decision)
+    def on_step(self, step: Step) -> None:
+        if self.labeller is None:  # the expert drives: its decision of this tick labels the rows
+            obs, controls = step.observations, step.controls
+            decision = cast(ExpertAgent, step.agent).decision
+        else:  # another agent drives: the expert decides beside it, on the state it reached
+            obs = self.labeller_observer.build(step.snapshot, step.tick, step.rows, step.cav_index, True)
+            controls = self.labeller.run_step(obs)
+            decision = self.labeller.decision
+        assert decision is not None and decision.tick == step.tick
+        self.trace.add(step.tick, obs, decision)
         self.row_builder.advance(obs)  # progress and standing clocks advance every tick, as in closed loop
         self.active[:] = False
-        self.active[obs.cav_index] = True
-        if obs.tick % self.sample_every == 0 and len(obs.cav_index):
-            self.pending.append(self._sample(obs, decision, controls))
-        self._flush(obs.tick)
-        return controls
+        self.active[step.cav_index] = True
+        if step.tick % self.sample_every == 0 and len(step.cav_index):
+            self.pending.append(self._sample(step, obs, decision, controls))
+        self._flush(step.tick)
 
-    def finish(self) -> None:
-        """The route has ended: label what is pending with the future there is, write it, close the shard."""
+    def on_route_end(self, result: RouteResult) -> None:
+        """Rows of a route that ran to its end are written (what is pending labelled with the future
+        there is) and the shard closed; a crashed route's shard is dropped."""
+        if result.status in (STATUS_AGENT_CRASHED, STATUS_SIM_CRASHED):
+            self.writer.abort()
+            return
         self.active[:] = False
         self._flush(None)
         self._write(force=True)
         self.writer.close()
 
     # ------------------------------------------------------------------ sampling
-    def _sample(self, obs: Observations, decision: ExpertDecision, controls: Controls) -> _SampleTick:
-        snap = obs.snapshot
-        assert snap is not None
-        rows = _rows_of(snap, obs.cav_index)
+    def _sample(
+        self, step: Step, obs: Observations, decision: ExpertDecision, controls: Controls
+    ) -> _SampleTick:
+        snap, rows = step.snapshot, step.rows
         sensed = self.observer.build(snap, obs.tick, rows, obs.cav_index, privileged=True)
         assert sensed.camera is not None and sensed.occupancy is not None
         assert sensed.merged_occupancy is not None and sensed.partner is not None
@@ -311,6 +323,8 @@ class CollectingAgent(Agent):
             return True
         if now < sample.tick + LABEL_TICKS:
             return False
+        if self.labeller is not None:  # labels from the plan: only the language's future is needed
+            return True
         i = sample.decision.cav_index
         gone = ~self.active[i]
         odo_then = self.trace.data[sample.tick, i, 4]
@@ -342,15 +356,8 @@ class CollectingAgent(Agent):
                 road_map=self.road_map,
             )
         )
-        labels = []
-        for a, k in enumerate(i):
-            k = int(k)
-            last = int(self.trace.last_tick[k])
-            traj = data[s.tick : last + 1, k]
-            traj = traj[~np.isnan(traj[:, 0])]
-            labels.append(
-                waypoint_labels(traj[:, :2], float(traj[0, 2]), self.trace.plan[k], float(traj[-1, 3]))
-            )
+        labels = [self._waypoints(s, a) for a in range(n)]
+        for a in range(n):
             self._row(s, a, {name: values[a] for name, values in s.columns.items()}, *labels[a], language[a])
         for v in s.views:  # from the view's frame the CAV's own path leads back (cmudrive.data.recovery)
             path, speed_wp = (to_view(p, v.offset) for p in labels[v.slot])
@@ -360,6 +367,19 @@ class CollectingAgent(Agent):
         # a labelled tick's snapshot and visibility are no longer needed
         s.columns.clear()
         s.views.clear()
+
+    def _waypoints(self, s: _SampleTick, a: int) -> tuple[np.ndarray, np.ndarray]:
+        """(path, speed waypoints) labels of the CAV at slot ``a``: its future as driven by the expert,
+        or, where another agent drove, what the labeller planned at the sample tick."""
+        d = s.decision
+        if self.labeller is not None:
+            r = int(s.rows[a])
+            pose = (float(s.snap.x[r]), float(s.snap.y[r]), float(s.snap.yaw[r]), float(s.snap.speed[r]))
+            return plan_labels(d.path[a], *pose, float(d.accel[a]), float(d.desired_speed[a]))
+        k = int(d.cav_index[a])
+        traj = self.trace.data[s.tick : int(self.trace.last_tick[k]) + 1, k]
+        traj = traj[~np.isnan(traj[:, 0])]
+        return waypoint_labels(traj[:, :2], float(traj[0, 2]), self.trace.plan[k], float(traj[-1, 3]))
 
     def _row(
         self,
@@ -382,6 +402,7 @@ class CollectingAgent(Agent):
         b["tick"].append(s.tick)
         b["time"].append(s.time)
         b["view"].append([0.0, 0.0, 0.0] if view is None else [float(v) for v in view])
+        b["driver"].append(self.driver)
         for name, value in inputs.items():
             b[name].append(value)
         b["path"].append(path)
@@ -404,10 +425,3 @@ class CollectingAgent(Agent):
         if len(self.buffer["route_id"]) >= ROW_GROUP or (force and self.buffer["route_id"]):
             self.writer.write(self.buffer)
             self.buffer = {k: [] for k in COLUMNS}
-
-
-def _rows_of(snap: Snapshot, cav_index: np.ndarray) -> np.ndarray:
-    """Snapshot rows of the CAVs ``cav_index``, in that order."""
-    rows, index = snap.cav_rows()
-    row_of = dict(zip(index.tolist(), rows.tolist(), strict=True))
-    return np.array([row_of[int(k)] for k in cav_index], np.int64)

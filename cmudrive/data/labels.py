@@ -13,6 +13,10 @@ recorded tick (its route ahead, shifted around obstacles), then straight along t
 waypoints past the last tick advance along that continuation at the last recorded speed. A CAV that stands
 still keeps its future: a CAV that waited 40 s at a red light and then drove on gets a path along the road
 it took and speed waypoints that stay at its position.
+
+Rows of states the expert did not drive into (closed-loop data: another agent drove, the expert labels
+beside it) have no future of the expert's to read; :func:`plan_labels` labels them from the expert's plan
+at the sample tick instead (its docstring says how).
 """
 
 from __future__ import annotations
@@ -111,3 +115,66 @@ def _arc_of_trajectory_end(trajectory: np.ndarray) -> float:
     """Arc length of the trajectory's last point on the polyline (the polyline starts with the trajectory)."""
     seg = np.hypot(*np.diff(_dedup(trajectory), axis=0).T) if len(trajectory) > 1 else np.zeros(0)
     return float(seg.sum())
+
+
+def plan_labels(
+    plan: np.ndarray,
+    x: float,
+    y: float,
+    yaw: float,
+    speed: float,
+    accel: float,
+    desired: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``path`` (PATH_POINTS, 2) and ``speed_waypoints`` (SPEED_POINTS, 2), float32, in the frame of a CAV
+    at ``x``, ``y`` [m], heading ``yaw`` [rad], from the expert's plan for it at this tick.
+
+    ``plan`` (P, 2), map frame: the expert's planned path ahead (its route ahead, shifted around
+    obstacles; ``ExpertDecision.path``, which starts at the route point ahead of the CAV: it is reached
+    back 2 m along its first heading). The path label is that plan from its point nearest the CAV on,
+    resampled ``PATH_SPACING`` apart: a CAV beside its lane gets a path that starts on the lane, as the
+    recovery views' labels do (``cmudrive.data.recovery``). The speed waypoints advance along the same
+    polyline from there, the speed starting at ``speed`` [m/s] and changing at the expert's commanded
+    ``accel`` [m/s^2] until it reaches ``desired`` [m/s] (the speed its rules allow now), never below 0;
+    a plan shorter than needed is continued straight along its last heading."""
+    plan = _dedup(np.asarray(plan, np.float64).reshape(-1, 2))
+    if len(plan) == 0:
+        plan = np.array([[x, y]], np.float64)
+    if len(plan) > 1:  # the plan starts at the route point ahead of the CAV: reach back to beside it
+        d = plan[0] - plan[1]
+        plan = np.concatenate([plan[:1] + 2.0 * PATH_SPACING * d / np.hypot(*d), plan])
+    s0, arc = _projection(plan, np.array([x, y]))
+    ticks = np.arange(1, SPEED_POINTS * SPEED_STEP_TICKS + 1) * 0.05  # [s] every tick of the horizon
+    v0, limit = max(speed, 0.0), max(desired, 0.0)
+    v = v0 + accel * ticks
+    v = np.minimum(v, max(v0, limit)) if accel >= 0.0 else np.maximum(v, min(v0, limit))
+    v = np.concatenate([[v0], np.maximum(v, 0.0)])
+    travelled = np.cumsum(v[:-1] + v[1:]) * 0.025  # trapezoids of 0.05 s
+    reach = max((PATH_POINTS - 1) * PATH_SPACING, float(travelled[-1]))
+    pts, arc = _extend(plan, arc, s0 + reach)
+    path = along(pts, arc, s0 + np.arange(PATH_POINTS) * PATH_SPACING)
+    speed_wp = along(pts, arc, s0 + travelled[SPEED_STEP_TICKS - 1 :: SPEED_STEP_TICKS])
+    return to_ego(path, x, y, yaw).astype(np.float32), to_ego(speed_wp, x, y, yaw).astype(np.float32)
+
+
+def _projection(points: np.ndarray, p: np.ndarray) -> tuple[float, np.ndarray]:
+    """(arc length of the point of the polyline ``points`` nearest ``p``, the polyline's arc lengths)."""
+    if len(points) == 1:
+        return 0.0, np.zeros(1)
+    seg = np.diff(points, axis=0)
+    length = np.hypot(*seg.T)
+    arc = np.concatenate([[0.0], np.cumsum(length)])
+    u = np.clip(((p - points[:-1]) * seg).sum(axis=1) / length**2, 0.0, 1.0)
+    nearest = points[:-1] + u[:, None] * seg
+    k = int(np.argmin(np.hypot(*(nearest - p).T)))
+    return float(arc[k] + u[k] * length[k]), arc
+
+
+def _extend(points: np.ndarray, arc: np.ndarray, reach: float) -> tuple[np.ndarray, np.ndarray]:
+    """The polyline continued straight along its last heading (+x for a lone point) to arc ``reach``."""
+    if arc[-1] >= reach:
+        return points, arc
+    d = points[-1] - points[-2] if len(points) > 1 else np.array([1.0, 0.0])
+    extra = reach - arc[-1] + PATH_SPACING
+    end = points[-1] + extra * d / np.hypot(*d)
+    return np.concatenate([points, end[None]]), np.concatenate([arc, [arc[-1] + extra]])

@@ -3,7 +3,7 @@
 A model trained only on the expert's own states has never seen itself off its lane and cannot steer back
 (imitation's compounding error). SimLingo renders half of its samples from a camera shifted sideways and
 turned, and moves the labels into the shifted frame. We render such views exactly, because we own the
-sensors: the collector (:class:`cmudrive.data.collector.CollectingAgent`) picks a share ``prob`` of the
+sensors: the collector (:class:`cmudrive.data.collector.RowCollector`) picks a share ``prob`` of the
 sampled CAV rows, draws a lateral offset (uniform in +-``max_shift``) and a heading offset (uniform in
 +-``max_yaw_deg``), and stores a *second* row of that CAV at that tick (the CAV's own row stays as it
 was), computed in a counterfactual copy of the tick's snapshot where the chosen CAVs stand at their view

@@ -35,7 +35,19 @@ CAMERA_FORMAT = "JPEG"
 JPEG_QUALITY = 90  # [-] PIL's scale; see docs/data.md for the size / speed / error trade-off
 PNG_COMPRESS_LEVEL = 1  # zlib level for the BEV PNGs: level 6 saves ~10 % more at ~3x the time
 
-METADATA = ("route_id", "scenario_type", "weather", "town", "num_cavs", "cav", "tick", "time", "view")
+EXPERT_DRIVER = "expert"  # the driver column of rows whose states the expert drove into itself
+METADATA = (
+    "route_id",
+    "scenario_type",
+    "weather",
+    "town",
+    "num_cavs",
+    "cav",
+    "tick",
+    "time",
+    "view",
+    "driver",
+)
 INPUTS = (
     "camera",
     "occupancy",
@@ -83,6 +95,7 @@ def features(occupancy: OccupancyConfig | None = None) -> datasets.Features:
         "tick": i32,
         "time": f32,
         "view": datasets.List(f32, length=3),  # x, y [m], yaw [rad] of the view in the CAV's frame
+        "driver": text,  # who drove: "expert", else the agent whose states the expert labelled
         "camera": datasets.Image(),
         "occupancy": array(h, w, "uint8"),
         "merged_occupancy": array(h, w, "uint8"),

@@ -58,6 +58,7 @@ def synthetic_row(route_id: str, index: int, rng: np.random.Generator, num_cavs:
         "tick": 5 * (index // num_cavs),
         "time": 0.25 * (index // num_cavs),
         "view": [0.0, 0.0, 0.0],
+        "driver": "expert",
         "camera": encode_image(camera, "JPEG"),
         "occupancy": packed,
         "merged_occupancy": packed,

@@ -21,10 +21,13 @@ from PIL import Image
 from torch.utils.data import Dataset, Sampler
 
 from cmudrive.agents.control import expert_stops
+from cmudrive.data.schema import EXPERT_DRIVER
 from cmudrive.model.augment import YawAugment, rotate_sample
 from cmudrive.model.row import STANDING_SPEED, TRAIN_COLUMNS, standing_seconds
 
 VIEW = "view"  # where a row was seen from, in the CAV's frame (zeros: the CAV's own view)
+DRIVER = "driver"  # who drove the CAV into the row's state ("expert", else closed-loop data)
+OPTIONAL = (VIEW, DRIVER)  # columns older collections lack: read where every shard has them
 GRID = "merged_occupancy"  # the stored grid the augmentation re-draws a rotated row's BEV from
 
 
@@ -50,36 +53,72 @@ def load_split(config: SplitSettings) -> tuple[Any, Any, list[str]]:
     val_routes = split_routes(sorted(set(route_of.tolist())), config.val_fraction, config.seed)
     is_val = np.isin(route_of, val_routes)
     train_rows = np.flatnonzero(~is_val & keep_rows(ds, config.standing_keep, config.seed))
-    is_val &= ~recovery_rows(ds)  # validation: the CAVs' own views, comparable across collections
+    is_val &= expert_rows(ds)  # validation: the expert's own views, comparable across collections
     if config.communication_repeat > 1:
         train_rows = repeat_rows(train_rows, communication_rows(ds)[train_rows], config.communication_repeat)
     return ds.select(train_rows), ds.select(np.flatnonzero(is_val)), val_routes
 
 
 def load_rows(data: str, extra: Sequence[str] = ()) -> Any:
-    """The training columns (and ``extra`` ones) of every row of the shards in ``data``, ``view`` where
-    the shards have it (collections before recovery views do not), and the derived input ``standing``
-    (:func:`cmudrive.model.row.standing_seconds`: from the whole sequence of each CAV's rows, so before
-    any selection)."""
+    """The training columns (and ``extra`` ones) of every row of the shards in ``data`` (a folder, or
+    several separated by commas: an expert collection and closed-loop collections on the same routes),
+    and the derived input ``standing`` (:func:`cmudrive.model.row.standing_seconds`: from the whole
+    sequence of each CAV's rows in its folder, so before any selection). ``view`` and ``driver`` are read
+    where a folder's shards have them; where another folder has them and this one not (collections
+    before recovery views or closed-loop data), its rows get the CAV's own view and the expert."""
+    import datasets
     import pyarrow.parquet as pq
 
     from cmudrive.data.shards import load_shards, shard_paths
 
-    views = all(VIEW in pq.read_schema(p).names for p in shard_paths(Path(data)))
-    columns = (*TRAIN_COLUMNS, *extra, *((VIEW,) if views and VIEW not in extra else ()))
-    ds = load_shards(data, columns)  # datasets' parquet loader over DIR/<route>.parquet
-    table = ds.data.table
-    column = {name: table.column(name).to_numpy() for name in ("route_id", "cav", "time", "speed")}
-    standing = standing_seconds(column["route_id"], column["cav"], column["time"], column["speed"])
-    return ds.add_column("standing", standing)
+    folders = [f for f in data.split(",") if f]
+    if not folders:
+        raise FileNotFoundError(f"{data!r}: no dataset folder")
+    names = [[set(pq.read_schema(p).names) for p in shard_paths(Path(f))] for f in folders]
+    has = [{c for c in OPTIONAL if c not in extra and n and all(c in m for m in n)} for n in names]
+    wanted = set().union(*has)
+    parts = []
+    for folder, present in zip(folders, has, strict=True):
+        ds = load_shards(folder, (*TRAIN_COLUMNS, *extra, *(c for c in OPTIONAL if c in present)))
+        table = ds.data.table
+        column = {name: table.column(name).to_numpy() for name in ("route_id", "cav", "time", "speed")}
+        standing = standing_seconds(column["route_id"], column["cav"], column["time"], column["speed"])
+        ds = ds.add_column("standing", standing)
+        for name in sorted(wanted - present):  # what an older collection lacks: own view, the expert
+            value: Any = [0.0, 0.0, 0.0] if name == VIEW else EXPERT_DRIVER
+            feature = datasets.List(datasets.Value("float32"), length=3) if name == VIEW else None
+            ds = ds.add_column(name, [value] * len(ds), feature=feature)
+        parts.append(
+            ds.select_columns([*TRAIN_COLUMNS, *extra, *(c for c in OPTIONAL if c in wanted), "standing"])
+        )
+    return parts[0] if len(parts) == 1 else datasets.concatenate_datasets(parts)
 
 
 def recovery_rows(ds: Any) -> np.ndarray:
     """(N,) bool: rows seen from a recovery view (``cmudrive.data.recovery``), not from the CAV itself."""
     if VIEW not in ds.column_names:
         return np.zeros(len(ds), bool)
-    view = ds.data.table.column(VIEW).combine_chunks().flatten().to_numpy().reshape(len(ds), 3)
+    view = _column(ds, VIEW).combine_chunks().flatten().to_numpy().reshape(len(ds), 3)
     return np.abs(view).sum(axis=1) > 0.0
+
+
+def _column(ds: Any, name: str) -> Any:
+    """The Arrow column ``name`` of the rows of ``ds``, in its order (of a selection too, where
+    ``ds.data.table`` would be the whole underlying table)."""
+    return ds.select_columns([name]).with_format("arrow")[:].column(name)
+
+
+def closed_loop_rows(ds: Any) -> np.ndarray:
+    """(N,) bool: rows of states another agent drove into, labelled by the expert beside it."""
+    if DRIVER not in ds.column_names:
+        return np.zeros(len(ds), bool)
+    return np.asarray(_column(ds, DRIVER).to_numpy(zero_copy_only=False)) != EXPERT_DRIVER
+
+
+def expert_rows(ds: Any) -> np.ndarray:
+    """(N,) bool: rows the expert drove into, seen from the CAV itself (no recovery view): the rows
+    validation reads, comparable across collections."""
+    return ~recovery_rows(ds) & ~closed_loop_rows(ds)
 
 
 STANDING_STAYS = 0.5  # [m] the last speed waypoint (2.5 s ahead) within this of the CAV

@@ -1,6 +1,6 @@
 """The row contract: the one place that turns a CAV's observations and plan into V2V-VLA's input row.
 
-Data collection (:class:`cmudrive.data.collector.CollectingAgent`) stores these rows and the closed-loop
+Data collection (:class:`cmudrive.data.collector.RowCollector`) stores these rows and the closed-loop
 agent (:class:`cmudrive.model.agent.V2VVLAAgent`) feeds them to the model, both through a
 :class:`RowBuilder`, so that the model reads in closed loop what it was trained on; training reads the
 stored columns :data:`TRAIN_COLUMNS`. A row of one CAV at one tick:

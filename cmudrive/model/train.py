@@ -56,7 +56,7 @@ class TrainConfig:
     """One training run: ``epochs`` passes over the training routes, or ``max_steps`` optimizer steps when
     given (then as many epochs as that takes)."""
 
-    data: str  # folder of <route>.parquet shards
+    data: str  # folder of <route>.parquet shards, or several separated by commas
     out: str  # output folder
     model: str = "tiny"  # named configuration (cmudrive.model.get_config)
     cooperative: bool = True  # False: the non-cooperative baseline (same data, size and budget)
