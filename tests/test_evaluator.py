@@ -241,6 +241,7 @@ class Watch(RouteCallback):
         if step.tick == self.fail_at:
             raise RuntimeError(f"callback failure at tick {step.tick}")
         assert step.snapshot.time == pytest.approx(step.tick * 0.05)
+        assert step.after.time == pytest.approx((step.tick + 1) * 0.05)
         self.steps.append((step.tick, len(step.cav_index), float(step.controls.throttle[0])))
 
     def on_route_end(self, result: RouteResult) -> None:
@@ -249,7 +250,8 @@ class Watch(RouteCallback):
 
 def test_callbacks_hear_every_tick_and_change_nothing() -> None:
     """A callback hears the start (the privileged set-up, whatever the agent declared), every tick with
-    the agent's controls, and the final record; the route scores as it does without it."""
+    the agent's controls and the world before and after it, and the final record; the route scores as it
+    does without it."""
     config = EvalConfig(background=EMPTY)
     plain = evaluate_route(ring_route(), PidAgent, config)
     watch = Watch()
@@ -268,4 +270,4 @@ def test_a_failing_callback_is_a_simulation_crash_not_the_agents() -> None:
     assert result.status == STATUS_SIM_CRASHED
     assert all(c.status == STATUS_SIM_CRASHED for c in result.cavs)
     assert result.error is not None and "callback failure at tick 7" in result.error
-    assert watch.ended is result and result.ticks == 7
+    assert watch.ended is result and result.ticks == 8  # it failed once the world had run tick 7

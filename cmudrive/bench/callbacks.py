@@ -1,12 +1,14 @@
 """Step callbacks of the evaluation loop: code that watches a route being driven without driving it.
 
 In the spirit of nuPlan's simulation callbacks, :func:`cmudrive.bench.evaluate_route` takes callbacks
-that hear the route start (:meth:`RouteCallback.on_route_start`, after the world, the scenarios and the
-agent's ``setup``), every tick after the agent acted (:meth:`RouteCallback.on_step`: the state it saw,
-the observations it got, the controls it returned, before the scenarios and the world move on), and the
-route end (:meth:`RouteCallback.on_route_end`, with the final record, before the agent's ``destroy``).
-The driving agent is any agent: data collection (``cmudrive.data.collector.RowCollector``) is a callback,
-so the expert or a learned model can drive while rows are recorded.
+that hear the route start (:meth:`RouteCallback.on_route_start`, once the world and the scenarios are
+built, before the agent's ``setup``), every tick once the world has moved on it
+(:meth:`RouteCallback.on_step`: the state the agent saw, the observations it got, the controls it
+returned and those the world applied, and the state after the tick, scored), and the route end
+(:meth:`RouteCallback.on_route_end`, with the final record, before the agent's ``destroy``). The driving
+agent is any agent: data collection (``cmudrive.data.collector.RowCollector``) and the replay log
+(``cmudrive.bench.recording.LogRecorder``) are callbacks, so the expert or a learned model can drive
+while rows or logs are recorded.
 
 What a callback raises is not the agent's fault: in ``on_route_start`` or ``on_step`` it ends the route as
 "Failed - Simulation crashed" (the traceback in the record); from ``on_route_end`` it propagates out of
@@ -37,12 +39,12 @@ class RouteStart:
 
     spec: RouteSpec
     setup: RouteSetup  # the privileged set-up (road map, dense routes), whatever the agent declared
-    agent: Agent  # the driving agent, after its setup
+    agent: Agent  # the driving agent, constructed; its setup comes next
 
 
 @dataclass(frozen=True)
 class Step:
-    """One tick as the agent saw and answered it."""
+    """One tick: as the agent saw and answered it, and the world after it."""
 
     tick: int
     time: float  # [s]
@@ -52,6 +54,8 @@ class Step:
     observations: Observations  # what the agent got (only what it declared)
     controls: Controls  # what it returned, checked, before the scenarios' perturbation
     agent: Agent
+    applied: Controls  # what the world applied (ControlLoss perturbs the agent's controls)
+    after: Snapshot  # the world after the tick (criteria updated, finished CAVs not yet removed)
 
 
 class RouteCallback:
@@ -61,7 +65,7 @@ class RouteCallback:
         """The route is about to run its first tick."""
 
     def on_step(self, step: Step) -> None:
-        """The agent has answered the tick ``step.tick``."""
+        """The tick ``step.tick`` has run."""
 
     def on_route_end(self, result: RouteResult) -> None:
         """The route is over (any status, crashes included); ``result`` is its final record."""

@@ -48,13 +48,12 @@ from cmudrive.bench.compile_clock import CompileClock
 from cmudrive.bench.criteria import CriteriaConfig, RouteCriteria
 from cmudrive.bench.metrics import comfort_score, route_result
 from cmudrive.bench.observe import ObservationBuilder, SensorConfig
-from cmudrive.bench.recording import RouteRecorder, infraction_event
+from cmudrive.bench.recording import LogRecorder
 from cmudrive.bench.records import (
     STATUS_AGENT_CRASHED,
     STATUS_SIM_CRASHED,
     STATUS_TICK_CAP,
     RouteResult,
-    record_stem,
 )
 from cmudrive.bench.route_actors import RouteActors
 from cmudrive.bench.routes import RouteSpec
@@ -63,7 +62,7 @@ from cmudrive.maps import MapError, RoadMap, Route, load_map, load_scenery
 from cmudrive.sim.background import BackgroundConfig
 from cmudrive.sim.dynamics import ControlError, Controls, check_controls
 from cmudrive.sim.populated import populated_world
-from cmudrive.sim.snapshot import Role, Snapshot
+from cmudrive.sim.snapshot import Snapshot
 from cmudrive.sim.world import World, WorldConfig
 
 DT = 0.05  # [s]
@@ -149,6 +148,8 @@ def evaluate_route(
     ``callbacks`` watch the route (:mod:`cmudrive.bench.callbacks`)."""
     config = config or EvalConfig()
     hooks = hooks or RouteHooks()
+    if config.record_dir is not None:  # the replay log (--record) is a callback too
+        callbacks = (LogRecorder(config.record_dir), *callbacks)
     with CompileClock(hooks.enter, lambda: hooks.current):
         return _run_route(spec, make_agent, config, hooks, tuple(callbacks))
 
@@ -188,7 +189,6 @@ def _run_route(
             _destroy(agent, config.step_timeout, hooks)
             raise RouteInputError(str(exc)) from exc
         actors = RouteActors(spec, world)  # the route's own actors, apart from the scenarios
-        recorder = _recorder(spec, routes, config)
         observer = ObservationBuilder(
             declared,
             len(routes),
@@ -198,16 +198,14 @@ def _run_route(
             rng=np.random.default_rng([spec.seed, 1]),  # sensors' own stream: traffic is unchanged
             road_map=road_map,
         )
-        loop = _Loop(
-            world, criteria, agent, observer, config, recorder, hooks, spec, scenarios, actors, callbacks
-        )
+        loop = _Loop(world, criteria, agent, observer, config, hooks, spec, scenarios, actors, callbacks)
         try:
             setups = (
                 _setup(spec, road_map, routes, cav_ids, privileged),
                 _setup(spec, road_map, routes, cav_ids, True),  # what callbacks see
             )
             error = _drive(loop, scenarios, criteria, *setups)
-            result = _final_result(spec, routes, loop, recorder, config, error)
+            result = _final_result(spec, routes, loop, error)
             if hooks.partial is not None:  # final: a destroy() hung past the watchdog keeps these scores
                 hooks.partial(result)
             for callback in callbacks:
@@ -226,12 +224,12 @@ def _drive(
     setup: RouteSetup,
     privileged_setup: RouteSetup,
 ) -> str | None:
-    """The agent's setup, the callbacks' start and the route's ticks; the traceback when the agent or the
+    """The callbacks' start, the agent's setup and the route's ticks; the traceback when the agent or the
     simulation (a callback included) crashed (the CAVs still running get that status), else None."""
     try:
-        loop.setup(setup)
         for callback in loop.callbacks:
             callback.on_route_start(RouteStart(loop.spec, privileged_setup, loop.agent))
+        loop.setup(setup)
         loop.run()
         scenarios.finish()  # scenario actors leave, blocked tests resume (before the world closes)
     except AgentCrash:
@@ -243,26 +241,12 @@ def _drive(
     return None
 
 
-def _final_result(
-    spec: RouteSpec,
-    routes: list[Route],
-    loop: _Loop,
-    recorder: RouteRecorder | None,
-    config: EvalConfig,
-    error: str | None,
-) -> RouteResult:
-    """The route's record once its ticks are done (comfort and first-junction shares added; the log,
-    with the infraction events, saved)."""
+def _final_result(spec: RouteSpec, routes: list[Route], loop: _Loop, error: str | None) -> RouteResult:
+    """The route's record once its ticks are done (comfort and first-junction shares added)."""
     cavs = loop.criteria.results()
     for i, cav in enumerate(cavs):
         cav.comfort = comfort_score(*loop.kinematics(i))
         cav.first_junction_completion = first_junction_completion(routes[i])
-    if recorder is not None:
-        for i, cav in enumerate(cavs):
-            for events in cav.infractions.values():
-                for inf in events:  # log ticks count recorded snapshots: world step 1 is log tick 0
-                    recorder.add_events(max(inf.tick - 1, 0), [infraction_event(i, inf)])
-        recorder.save(Path(config.record_dir or ".") / f"{record_stem(spec.id)}.npz")
     scenario = spec.scenarios[0].type if spec.scenarios else ""
     result = route_result(spec.id, spec.town, spec.weather, scenario, cavs, seed=spec.seed)
     result.ticks = loop.world.step_count
@@ -298,12 +282,6 @@ def _setup(
     )
 
 
-def _recorder(spec: RouteSpec, routes: list[Route], config: EvalConfig) -> RouteRecorder | None:
-    if config.record_dir is None:
-        return None
-    return RouteRecorder(spec.id, spec.town, [r.xy for r in routes])
-
-
 def _destroy(agent: Agent, timeout: float, hooks: RouteHooks) -> str | None:
     """The agent's ``destroy()`` under ``run_step``'s time limit (phase ``"cleanup"`` for the runner's
     watchdog); what went wrong, or None. A failing clean-up never hides the route's result."""
@@ -332,7 +310,6 @@ class _Loop:
         agent: Agent,
         observer: ObservationBuilder,
         config: EvalConfig,
-        recorder: RouteRecorder | None,
         hooks: RouteHooks,
         spec: RouteSpec,
         scenarios: ScenarioManager | None = None,
@@ -343,7 +320,7 @@ class _Loop:
         self.callbacks = callbacks
         self.scenarios = scenarios or ScenarioManager([], [], [])
         self.actors = actors
-        self.observer, self.config, self.recorder = observer, config, recorder
+        self.observer, self.config = observer, config
         self.privileged = Observation.PRIVILEGED in observer.declared
         self.asks_partners = observer.network is not None
         self.requested: np.ndarray | None = None  # partners the agent named at the last tick
@@ -378,17 +355,19 @@ class _Loop:
         for tick in range(self.config.tick_cap):
             rows, index = _active_cavs(snap, world)
             controls, obs = self._agent_step(snap, tick, rows, index)
-            for callback in self.callbacks:
-                callback.on_step(Step(tick, obs.time, snap, rows, index, obs, controls, self.agent))
             self.scenarios.update(snap)  # scripted actors move before the world ticks
             if self.actors is not None:
                 self.actors.update(DT)  # and so do the route's own actors
-            controls = self.scenarios.perturb(controls, index)  # ControlLoss noise on the CAVs' controls
-            snap = world.tick(controls)  # the agent's controls were checked: a ControlError here is ours
+            applied = self.scenarios.perturb(controls, index)  # ControlLoss noise on the CAVs' controls
+            seen, snap = (
+                snap,
+                world.tick(applied),
+            )  # the agent's controls were checked: a ControlError is ours
             self._trace(snap, tick + 1)
             criteria.update(snap, world.collisions)
-            if self.recorder is not None:
-                self.recorder.record(snap, controls, np.flatnonzero(snap.role == Role.CAV))
+            step = Step(tick, obs.time, seen, rows, index, obs, controls, self.agent, applied, snap)
+            for callback in self.callbacks:
+                callback.on_step(step)
             for i in np.flatnonzero(criteria.newly_finished()):
                 world.remove_cav(int(i))
             if hooks.tick is not None:

@@ -25,6 +25,7 @@ Typical use::
     recorder.save("results/logs/route_0.npz")
     log = load_route_log("results/logs/route_0.npz")
 
+The evaluator records through :class:`LogRecorder`, a step callback (``cmudrive.bench.callbacks``).
 ``cmudrive.bench.route_log`` reads a log back (checking every field); ``cmudrive.viz.replay`` draws it as
 a BEV video.
 """
@@ -41,9 +42,10 @@ from typing import Any
 
 import numpy as np
 
-from cmudrive.bench.records import Infraction
+from cmudrive.bench.callbacks import RouteCallback, RouteStart, Step
+from cmudrive.bench.records import Infraction, RouteResult, record_stem
 from cmudrive.sim.dynamics import Controls
-from cmudrive.sim.snapshot import Snapshot
+from cmudrive.sim.snapshot import Role, Snapshot
 
 FORMAT_NAME = "cmudrive.route_log"
 FORMAT_VERSION = 1  # bump on any incompatible change; readers refuse newer versions
@@ -300,3 +302,32 @@ class RouteRecorder:
             return np.frombuffer("".join(states).encode("ascii"), dtype=np.uint8).copy()
         except UnicodeEncodeError as exc:
             raise ValueError(f"{where}: traffic-light states {states} are not ASCII") from exc
+
+
+# ---------------------------------------------------------------------- the evaluator's log
+class LogRecorder(RouteCallback):
+    """A step callback that writes the route log of every route it watches (``cmudrive eval --record``):
+    each tick's world after the step with the controls applied in it, the infractions as events, saved
+    as ``<folder>/<record_stem(route id)>.npz`` when the route ends (crashed routes included)."""
+
+    def __init__(self, folder: str | Path) -> None:
+        self.folder = Path(folder)
+        self.recorder: RouteRecorder | None = None
+
+    def on_route_start(self, start: RouteStart) -> None:
+        routes = [c.dense_route for c in start.setup.cavs]
+        assert all(r is not None for r in routes)  # callbacks get the privileged set-up
+        self.recorder = RouteRecorder(start.spec.id, start.spec.town, [r.xy for r in routes if r is not None])
+
+    def on_step(self, step: Step) -> None:
+        assert self.recorder is not None
+        self.recorder.record(step.after, step.applied, np.flatnonzero(step.after.role == Role.CAV))
+
+    def on_route_end(self, result: RouteResult) -> None:
+        if self.recorder is None:  # the route ended before it started (the agent's setup crashed)
+            return
+        for i, cav in enumerate(result.cavs):
+            for events in cav.infractions.values():
+                for inf in events:  # log ticks count recorded snapshots: world step 1 is log tick 0
+                    self.recorder.add_events(max(inf.tick - 1, 0), [infraction_event(i, inf)])
+        self.recorder.save(self.folder / f"{record_stem(result.route_id)}.npz")
