@@ -6,9 +6,10 @@ built, before the agent's ``setup``), every tick once the world has moved on it
 (:meth:`RouteCallback.on_step`: the state the agent saw, the observations it got, the controls it
 returned and those the world applied, and the state after the tick, scored), and the route end
 (:meth:`RouteCallback.on_route_end`, with the final record, before the agent's ``destroy``). The driving
-agent is any agent: data collection (``cmudrive.data.collector.RowCollector``) and the replay log
-(``cmudrive.bench.recording.LogRecorder``) are callbacks, so the expert or a learned model can drive
-while rows or logs are recorded.
+agent is any agent: data collection (``cmudrive.data.collector.RowCollector``), the replay log
+(``cmudrive.bench.recording.LogRecorder``) and the partial scores a runner's worker sends its parent
+(``RouteHooks.partial``) are callbacks, so the expert or a learned model can drive while rows, logs or
+scores are recorded.
 
 What a callback raises is not the agent's fault: in ``on_route_start`` or ``on_step`` it ends the route as
 "Failed - Simulation crashed" (the traceback in the record); from ``on_route_end`` it propagates out of
@@ -19,6 +20,7 @@ declared: they must not change what they are given.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -56,6 +58,7 @@ class Step:
     agent: Agent
     applied: Controls  # what the world applied (ControlLoss perturbs the agent's controls)
     after: Snapshot  # the world after the tick (criteria updated, finished CAVs not yet removed)
+    scores: Callable[[], RouteResult]  # the route's scores so far (comfort, first-junction share: at the end)
 
 
 class RouteCallback:

@@ -150,6 +150,8 @@ def evaluate_route(
     hooks = hooks or RouteHooks()
     if config.record_dir is not None:  # the replay log (--record) is a callback too
         callbacks = (LogRecorder(config.record_dir), *callbacks)
+    if hooks.partial is not None:  # and so are the partial scores (first: before any other can fail)
+        callbacks = (_PartialScores(hooks.partial, hooks.partial_every), *callbacks)
     with CompileClock(hooks.enter, lambda: hooks.current):
         return _run_route(spec, make_agent, config, hooks, tuple(callbacks))
 
@@ -206,8 +208,6 @@ def _run_route(
             )
             error = _drive(loop, scenarios, criteria, *setups)
             result = _final_result(spec, routes, loop, error)
-            if hooks.partial is not None:  # final: a destroy() hung past the watchdog keeps these scores
-                hooks.partial(result)
             for callback in callbacks:
                 callback.on_route_end(result)
         finally:
@@ -215,6 +215,21 @@ def _run_route(
     result.cleanup_error = cleanup_error
     result.wall_time = time.perf_counter() - started
     return result
+
+
+class _PartialScores(RouteCallback):
+    """``RouteHooks.partial`` as a callback: the scores so far every ``every`` ticks, and the final record
+    at the end, before the agent's ``destroy`` (a ``destroy()`` hung past the watchdog keeps them)."""
+
+    def __init__(self, send: Callable[[RouteResult], None], every: int) -> None:
+        self.send, self.every = send, every
+
+    def on_step(self, step: Step) -> None:
+        if (step.tick + 1) % self.every == 0:
+            self.send(step.scores())
+
+    def on_route_end(self, result: RouteResult) -> None:
+        self.send(result)
 
 
 def _drive(
@@ -365,15 +380,15 @@ class _Loop:
             )  # the agent's controls were checked: a ControlError is ours
             self._trace(snap, tick + 1)
             criteria.update(snap, world.collisions)
-            step = Step(tick, obs.time, seen, rows, index, obs, controls, self.agent, applied, snap)
+            step = Step(
+                tick, obs.time, seen, rows, index, obs, controls, self.agent, applied, snap, self.partial
+            )
             for callback in self.callbacks:
                 callback.on_step(step)
             for i in np.flatnonzero(criteria.newly_finished()):
                 world.remove_cav(int(i))
             if hooks.tick is not None:
                 hooks.tick(tick + 1)
-            if hooks.partial is not None and (tick + 1) % hooks.partial_every == 0:
-                hooks.partial(self.partial())
             if criteria.finished().all():
                 return
         criteria.end_route(STATUS_TICK_CAP)
