@@ -393,6 +393,9 @@ def test_ablations_ignore_partner_requests_or_feed_the_own_occupancy(checkpoints
     agent = V2VVLAAgent(checkpoint=checkpoints["coop"], bev="own")
     agent.setup(RouteSetup("r", "mini", "ClearNoon", 0.05, plans))
     assert np.array_equal(agent.rows(obs)[0]["merged_bev"], occupancy_to_rgb(own)[0])
+    agent = V2VVLAAgent(checkpoint=checkpoints["coop"], bev="empty")
+    agent.setup(RouteSetup("r", "mini", "ClearNoon", 0.05, plans))
+    assert np.array_equal(agent.rows(obs)[0]["merged_bev"], occupancy_to_rgb(np.zeros_like(own))[0])
     with pytest.raises(ValueError, match="bev must be"):
         V2VVLAAgent(checkpoint=checkpoints["coop"], bev="none")
     with pytest.raises(ValueError, match="desired_speed must be"):

@@ -105,7 +105,8 @@ class V2VVLAAgent(Agent):
         ``max_new_tokens``: cap on generated answer tokens (default: the model's ``max_answer_tokens``).
         Ablations of the cooperative model: ``partner_requests=False`` ignores the partner its sentences
         name (every CAV keeps the default partner, the closest CAV in front); ``bev="own"`` gives it the
-        CAV's own occupancy instead of the merged one (no partner information in the image).
+        CAV's own occupancy instead of the merged one (no partner information in the image),
+        ``bev="empty"`` an image of no occupancy at all (what does the model take from the image?).
         ``camera_jpeg=False`` feeds the raw camera render instead of the dataset's JPEG round trip
         (which training saw; ~0.3 ms per CAV and tick, docs/model.md, "Row contract").
         ``desired_speed``, for a model with a speed query: ``"query"`` drives toward its predicted speed
@@ -114,8 +115,8 @@ class V2VVLAAgent(Agent):
         "Go/stop")."""
         if language_every < 1:
             raise ValueError(f"language_every must be >= 1 tick, got {language_every}")
-        if bev not in ("merged", "own"):
-            raise ValueError(f"bev must be 'merged' or 'own', got {bev!r}")
+        if bev not in ("merged", "own", "empty"):
+            raise ValueError(f"bev must be 'merged', 'own' or 'empty', got {bev!r}")
         if desired_speed not in ("query", "waypoints"):
             raise ValueError(f"desired_speed must be 'query' or 'waypoints', got {desired_speed!r}")
         self.desired_speed = desired_speed
@@ -169,6 +170,8 @@ class V2VVLAAgent(Agent):
         if self.cooperative:
             grid = obs.merged_occupancy if self.bev == "merged" else obs.occupancy
             assert grid is not None
+            if self.bev == "empty":
+                grid = np.zeros_like(grid)
         return self.row_builder.model_rows(self.row_builder.inputs(obs, grid), jpeg=self.camera_jpeg)
 
     def run_step(self, obs: Observations) -> Controls:
