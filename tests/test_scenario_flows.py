@@ -256,3 +256,36 @@ def test_a_flow_source_inside_a_junction_starts_where_its_lane_leaves_it() -> No
     assert np.min(np.linalg.norm(path.xy - given, axis=1)) > 5.0  # it starts past the given point ...
     start_xy = path.xy[0]
     assert np.linalg.norm(start_xy - given) < 10.0  # ... a few metres on, where the junction lane ends
+
+
+def test_a_car_sumo_discarded_is_dropped_before_the_flow_reacts_to_its_first_collision(
+    mini_net: Path, mini: RoadMap, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A car SUMO discarded at insertion is neither running nor pending; when the flow's first collision
+    comes in the same tick, the flow must drop that car before commanding its cars to follow traffic
+    (cmudrive44's EnterActorFlow_3, seed 1, crashed the route with "Vehicle ... is not known" there)."""
+    import libsumo
+
+    lane = mini.lane("CE_1")
+    with World(WorldConfig(town=mini_net, seed=1), road_map=mini) as world:
+        flow = VehicleFlow(
+            "F", world, mini, LanePoint(lane, 20.0), LanePoint(lane, 195.0), (30.0, 30.0), 12.0,
+            np.random.default_rng(0), True,
+        )  # fmt: skip
+        none = Controls(np.zeros(0), np.zeros(0), np.zeros(0))
+        snap = world.tick(none)
+        for _ in range(80):  # 4 s: two cars out
+            flow.update(snap)
+            snap = world.tick(none)
+        assert flow.cars[:2] == ["F:0", "F:1"]
+        listed = libsumo.vehicle.getIDList
+        monkeypatch.setattr(libsumo.vehicle, "getIDList", lambda: [c for c in listed() if c != "F:1"])
+        monkeypatch.setattr(flow, "_hit_something", lambda: True)
+        commanded: list[str] = []
+        override = world.sumo.override
+        monkeypatch.setattr(
+            world.sumo, "override", lambda car, **kw: (commanded.append(car), override(car, **kw))
+        )
+        flow.update(snap)  # F:1 looks discarded, and a collision came in
+    assert flow.collided and "F:1" not in flow.cars and "F:0" in flow.cars
+    assert "F:1" not in commanded and "F:0" in commanded

@@ -96,11 +96,6 @@ class VehicleFlow:
         import libsumo
 
         sumo = self.world.sumo
-        if self.imposed and not self.collided and self._hit_something():
-            self.collided = True
-            for car in self.cars:  # the speed stays as it is (the car that hit something is held)
-                if car in sumo.actors:
-                    self._control(car, set_speed=False)
         rows = {str(a): i for i, a in enumerate(snap.ids.tolist()) if str(a).startswith(self.name)}
         # a car SUMO discarded at insertion (it could not depart, e.g. too fast before a red line) is neither
         # running nor pending, and never reported as arrived: drop it, or the flow would wait for it forever
@@ -117,6 +112,13 @@ class VehicleFlow:
                 sumo.remove(car)
                 self.cars.remove(car)
                 self.born.pop(car, None)
+        # after the clean-up: a car SUMO discarded cannot be commanded (EnterActorFlow_3, seed 1, crashed
+        # the route when the flow's first collision came in the tick after such a discard)
+        if self.imposed and not self.collided and self._hit_something():
+            self.collided = True
+            for car in self.cars:  # the speed stays as it is (the car that hit something is held)
+                if car in sumo.actors:
+                    self._control(car, set_speed=False)
         last = f"{self.name}:{self.spawned - 1}"
         if self.spawned and last in self.cars:
             try:
