@@ -31,18 +31,23 @@ def test_named_configs_and_overrides() -> None:
     assert get_config("tiny", text={"num_layers": 2}).text.num_layers == 2  # type: ignore[union-attr]
 
 
-def test_tiny_v1_is_the_configuration_the_committed_checkpoints_were_saved_with() -> None:
-    """Retraining with --config tiny-v1 builds the committed pairs' architecture and inputs."""
+def test_the_committed_checkpoints_were_saved_with_named_configurations() -> None:
+    """Retraining with --config tiny-v1 builds the first pair's architecture and inputs, --config tiny
+    (the default) the defaults'."""
     import json
     from pathlib import Path
 
     from cmudrive.model.config import ModelConfig
 
     models = Path(__file__).resolve().parents[1] / "cmudrive" / "assets" / "models"
-    for name in ("v2v-vla-tiny", "v2v-vla-tiny-no-speed", "v2v-vla-baseline-tiny-no-speed"):
+    for name, config in (
+        ("v2v-vla-tiny", "tiny-v1"),  # the first pair
+        ("v2v-vla-tiny-no-speed", "tiny"),  # the defaults
+        ("v2v-vla-baseline-tiny-no-speed", "tiny"),
+    ):
         saved = ModelConfig.from_dict(json.loads((models / name / "vla_config.json").read_text())["config"])
         rebuilt = get_config(
-            "tiny-v1", cooperative=saved.cooperative, speed_in_prompt=saved.speed_in_prompt
+            config, cooperative=saved.cooperative, speed_in_prompt=saved.speed_in_prompt
         ).replace(name=saved.name)
         assert rebuilt == saved, name
 
