@@ -444,6 +444,10 @@ def test_plan_labels_start_on_the_plan_and_roll_at_the_commanded_acceleration() 
     assert starting[-1, 0] == pytest.approx(2.25 + 3.0 * 1.0, abs=0.15)
     _, past_end = plan_labels(plan[:5], 0.0, 0.0, 0.0, 10.0, 0.0, 10.0)  # a short plan goes on straight
     assert past_end[-1, 0] == pytest.approx(25.0, abs=1e-4) and abs(past_end[-1, 1]) < 1e-6
+    end = np.tile([[5.0, 5.0]], (40, 1))  # at the end of its route the plan is one point, repeated
+    path, _ = plan_labels(end, 5.0, 5.0, np.pi / 2, 2.0, 0.0, 2.0)  # the CAV heads along +y
+    np.testing.assert_allclose(path[:, 0], np.arange(20.0), atol=1e-5)  # straight ahead of it
+    np.testing.assert_allclose(path[:, 1], 0.0, atol=1e-5)
 
 
 def test_collect_with_another_driver_names_it_in_the_rows(

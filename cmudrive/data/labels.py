@@ -136,7 +136,8 @@ def plan_labels(
     recovery views' labels do (``cmudrive.data.recovery``). The speed waypoints advance along the same
     polyline from there, the speed starting at ``speed`` [m/s] and changing at the expert's commanded
     ``accel`` [m/s^2] until it reaches ``desired`` [m/s] (the speed its rules allow now), never below 0;
-    a plan shorter than needed is continued straight along its last heading."""
+    a plan shorter than needed is continued straight along its last heading (a plan of one point, at the
+    end of its route, along the CAV's heading)."""
     plan = _dedup(np.asarray(plan, np.float64).reshape(-1, 2))
     if len(plan) == 0:
         plan = np.array([[x, y]], np.float64)
@@ -151,7 +152,7 @@ def plan_labels(
     v = np.concatenate([[v0], np.maximum(v, 0.0)])
     travelled = np.cumsum(v[:-1] + v[1:]) * 0.025  # trapezoids of 0.05 s
     reach = max((PATH_POINTS - 1) * PATH_SPACING, float(travelled[-1]))
-    pts, arc = _extend(plan, arc, s0 + reach)
+    pts, arc = _extend(plan, arc, s0 + reach, np.array([np.cos(yaw), np.sin(yaw)]))
     path = along(pts, arc, s0 + np.arange(PATH_POINTS) * PATH_SPACING)
     speed_wp = along(pts, arc, s0 + travelled[SPEED_STEP_TICKS - 1 :: SPEED_STEP_TICKS])
     return to_ego(path, x, y, yaw).astype(np.float32), to_ego(speed_wp, x, y, yaw).astype(np.float32)
@@ -170,11 +171,14 @@ def _projection(points: np.ndarray, p: np.ndarray) -> tuple[float, np.ndarray]:
     return float(arc[k] + u[k] * length[k]), arc
 
 
-def _extend(points: np.ndarray, arc: np.ndarray, reach: float) -> tuple[np.ndarray, np.ndarray]:
-    """The polyline continued straight along its last heading (+x for a lone point) to arc ``reach``."""
+def _extend(
+    points: np.ndarray, arc: np.ndarray, reach: float, heading: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The polyline continued straight along its last heading (``heading``, a unit vector, for a lone
+    point: a plan at the end of its route, its points all the same) to arc ``reach``."""
     if arc[-1] >= reach:
         return points, arc
-    d = points[-1] - points[-2] if len(points) > 1 else np.array([1.0, 0.0])
+    d = points[-1] - points[-2] if len(points) > 1 else heading
     extra = reach - arc[-1] + PATH_SPACING
     end = points[-1] + extra * d / np.hypot(*d)
     return np.concatenate([points, end[None]]), np.concatenate([arc, [arc[-1] + extra]])
