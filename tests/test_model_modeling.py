@@ -287,3 +287,18 @@ def test_a_batch_predicts_what_its_rows_predict_alone(model: V2VVLA) -> None:
     for i, row in enumerate(prompts):
         alone_silent = model.predict([row], max_new_tokens=0)
         assert torch.allclose(alone_silent.speed_waypoints[0], silent.speed_waypoints[i], atol=1e-4)
+
+
+@pytest.mark.parametrize("cooperative", [True, False])
+def test_a_forward_pass_under_bf16_autocast_gives_the_fp32_loss(cooperative: bool) -> None:
+    """Mixed precision (``cmudrive train`` on a GPU: bf16 autocast over fp32 weights; here the CPU's
+    autocast, which casts the same layers) runs the whole model and keeps the loss within bf16's error."""
+    model = tiny(cooperative=cooperative)
+    batch = model.processor(rows(3))
+    with torch.no_grad():
+        exact = model(batch)
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            mixed = model(batch)
+    assert mixed.loss is not None and exact.loss is not None and torch.isfinite(mixed.loss)
+    assert abs(float(mixed.loss) - float(exact.loss)) < 0.05 * float(exact.loss)
+    assert torch.allclose(mixed.path.float(), exact.path, atol=0.05, rtol=0.05)  # type: ignore[union-attr]

@@ -303,11 +303,13 @@ class V2VVLA(nn.Module):
                 f"{int(image_mask.sum())} image tokens for {image.shape[0]} tiles of {image.shape[1]}"
             )
         embeds = embeds.masked_scatter(image_mask, image.to(embeds.dtype))
-        points = self.target_point_encoder(batch.target_points.to(embeds.dtype))  # (B, 2, H)
+        # the encoders' outputs back to the embeddings' dtype: under mixed precision (bf16 autocast on a
+        # GPU) a Linear returns bf16 while the embedding table's lookup stays fp32
+        points = self.target_point_encoder(batch.target_points.to(embeds.dtype)).to(embeds.dtype)  # (B, 2, H)
         point_mask = (ids == self.processor.target_point_token_id).unsqueeze(-1)  # (B, L, 1), 2 per row
         embeds = embeds.masked_scatter(point_mask, points)
         if self.cav_encoder is not None and batch.cav_poses is not None and len(batch.cav_poses):
-            cavs = self.cav_encoder(batch.cav_poses.to(embeds.dtype))  # (M, H), in row and prompt order
+            cavs = self.cav_encoder(batch.cav_poses.to(embeds.dtype)).to(embeds.dtype)  # (M, H), prompt order
             cav_mask = (ids == self.processor.cav_point_token_id).unsqueeze(-1)  # (B, L, 1), M in all
             embeds = embeds.masked_scatter(cav_mask, cavs)
         return embeds
