@@ -324,7 +324,16 @@ def test_augmentation_is_a_function_of_seed_epoch_and_index(data: Path) -> None:
 
 # ---- training ---------------------------------------------------------------------------------------
 def config(data: Path, out: Path, **kw: object) -> TrainConfig:
-    base: dict = dict(data=str(data), out=str(out), batch_size=4, max_steps=7, save_every=2, log_every=1)
+    # fp32 on a GPU too: these tests compare runs to 1e-6 (mixed precision: tests/test_model_cuda.py)
+    base: dict = dict(
+        data=str(data),
+        out=str(out),
+        batch_size=4,
+        max_steps=7,
+        save_every=2,
+        log_every=1,
+        mixed_precision="no",
+    )
     return TrainConfig(**{**base, **kw, "val_fraction": 0.3})
 
 
@@ -484,3 +493,25 @@ def test_fine_tuning_starts_from_saved_weights_and_may_add_standing_time(data: P
     refused = CliRunner().invoke(app, [*args, "--baseline", "--out", str(tmp_path / "b"), *start])
     assert refused.exit_code == 1
     assert f"--init-from {first / 'model'}: a cooperative model" in " ".join(refused.output.split())
+
+
+def test_a_cooperative_model_may_start_from_the_baselines_weights(data: Path, tmp_path: Path) -> None:
+    """The warm start of docs/model.md: every tensor of the baseline's model lands in the cooperative one."""
+    from cmudrive.model.train import init_weights
+
+    base = tmp_path / "base"
+    train(config(data, base, max_steps=1, keep_checkpoints=1, cooperative=False), progress=False)
+    saved = V2VVLA.from_pretrained(base / "model")
+    coop = V2VVLA.from_config(config(data, tmp_path / "x").model_config())
+    assert coop.config.cooperative and not saved.config.cooperative
+    init_weights(coop, base / "model")
+    for name, tensor in saved.state_dict().items():
+        assert torch.equal(coop.state_dict()[name], tensor), name
+
+
+def test_one_process_trains_in_fp32_and_then_in_bf16(data: Path, tmp_path: Path) -> None:
+    """accelerate keeps one precision per process; a second run with another (on a GPU, ``auto`` after
+    the tests' fp32) used to stop with "AcceleratorState has already been initialized"."""
+    train(config(data, tmp_path / "fp32", max_steps=1, save_every=1), progress=False)
+    train(config(data, tmp_path / "bf16", max_steps=1, save_every=1, mixed_precision="bf16"), progress=False)
+    assert (tmp_path / "bf16" / "model" / "model.safetensors").is_file()

@@ -173,18 +173,37 @@ def latest_checkpoint(out: Path) -> Path | None:
 
 
 def init_weights(model: V2VVLA, source: Path) -> None:
-    """Load the weights of the saved model folder ``source`` into ``model`` (every tensor, same shapes)."""
+    """Load the weights of the saved model folder ``source`` into ``model`` (every tensor, same shapes).
+
+    A cooperative model may start from a baseline's weights (the same tensors: the baseline only leaves
+    the occupancy tile, the other CAVs and the communication sentence out of its rows), a warm start that
+    keeps what the camera-only model learnt; a baseline never starts from a cooperative model's weights,
+    which would carry cooperative training into the model it is compared against."""
     try:
         saved = V2VVLA.from_pretrained(source)
     except (OSError, ValueError, KeyError) as exc:
         raise ValueError(f"--init-from {source}: not a V2VVLA.save_pretrained folder ({exc})") from exc
-    if saved.config.cooperative != model.config.cooperative:
-        kind = "cooperative" if saved.config.cooperative else "baseline"
-        raise ValueError(f"--init-from {source}: a {kind} model, this run trains the other kind")
+    if saved.config.cooperative and not model.config.cooperative:
+        raise ValueError(
+            f"--init-from {source}: a cooperative model; the baseline starts from a baseline's weights"
+        )
     try:
         model.load_state_dict(saved.state_dict())
     except RuntimeError as exc:
         raise ValueError(f"--init-from {source}: its weights do not fit this configuration: {exc}") from exc
+
+
+def _accelerator(precision: str) -> Any:
+    """accelerate keeps one precision per process: a run in a process that trained before with another
+    (an ablation script, a notebook, the tests; on a GPU ``auto`` is bf16) clears it first instead of
+    failing with "AcceleratorState has already been initialized". Never under a distributed launch."""
+    from accelerate import Accelerator
+    from accelerate.state import AcceleratorState, PartialState
+
+    state = AcceleratorState._shared_state
+    if state and state.get("_mixed_precision") != precision and PartialState().num_processes == 1:
+        AcceleratorState._reset_state()
+    return Accelerator(mixed_precision=precision)
 
 
 def train(config: TrainConfig, resume: bool = False, progress: bool = True) -> dict[str, float]:
@@ -197,7 +216,6 @@ class Trainer:
     from), ``run`` steps until ``total`` optimizer steps, logging and checkpointing as it goes."""
 
     def __init__(self, config: TrainConfig, resume: bool, progress: bool) -> None:
-        from accelerate import Accelerator
         from accelerate.utils import set_seed
 
         self.config, self.out, self.progress = config, Path(config.out), progress
@@ -205,7 +223,7 @@ class Trainer:
         if len(train_rows) == 0:
             raise ValueError(f"{config.data}: no training rows after holding out routes {val_routes}")
         _check_out(config, self.out, resume)
-        self.accelerator = acc = Accelerator(mixed_precision=mixed_precision(config.mixed_precision))
+        self.accelerator = acc = _accelerator(mixed_precision(config.mixed_precision))
         set_seed(config.seed)
         model = V2VVLA.from_config(config.model_config())
         if config.init_from is not None:
