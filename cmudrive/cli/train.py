@@ -65,8 +65,8 @@ def train_model(
     init_from: Annotated[
         Path | None,
         typer.Option(
-            help="start from the weights of this model folder (a run's model/; same configuration sizes) "
-            "instead of fresh ones: fine-tuning"
+            help="start from the weights of this model folder (a run's model/; same configuration sizes; "
+            "V2V-VLA may start from a baseline's) instead of fresh ones: fine-tuning"
         ),
     ] = None,
     speed_dropout: Annotated[
