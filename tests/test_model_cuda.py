@@ -15,16 +15,12 @@ pytest.importorskip("transformers")
 import torch
 
 from cmudrive.data.synthetic import write_synthetic_shards
-from cmudrive.model import V2VVLA, get_config
+from cmudrive.model import V2VVLA
 from cmudrive.model.train import TrainConfig, train
 from tests.model_rows import rows
+from tests.test_model_modeling import tiny
 
 pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
-
-
-def tiny() -> V2VVLA:
-    torch.manual_seed(0)
-    return V2VVLA.from_config(get_config("tiny")).eval()
 
 
 def test_a_forward_pass_on_cuda_gives_the_cpus_outputs() -> None:
@@ -40,7 +36,7 @@ def test_a_forward_pass_on_cuda_gives_the_cpus_outputs() -> None:
     assert abs(float(a.loss) - float(b.loss)) < 1e-3
 
 
-def test_predict_on_cuda_returns_cpu_tensors_of_the_cpus_waypoints() -> None:
+def test_predict_on_cuda_gives_the_cpus_waypoints() -> None:
     cpu = tiny()
     gpu = copy.deepcopy(cpu).to("cuda")
     prompts = [{k: v for k, v in r.items() if k != "commentary"} for r in rows(3)]
