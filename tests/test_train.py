@@ -152,6 +152,31 @@ def test_communication_rows_repeat_in_training_not_in_validation(data: Path) -> 
         TrainConfig(data="d", out="o", communication_repeat=0)
 
 
+def test_cooperative_dropout_shows_a_share_of_rows_without_the_other_cavs(data: Path) -> None:
+    train_rows, _, _ = load_split(TrainConfig(data=str(data), out="unused", val_fraction=0.0))
+    full = DrivingDataset(train_rows, None, seed=1)
+    alone = DrivingDataset(train_rows, None, seed=1, cooperative_dropout=0.5)
+    empty = packed_to_rgb(np.zeros((192, 128), np.uint8))  # the default 0.5 m grid, 96 x 64 m
+    dropped = []
+    for i in range(len(train_rows)):
+        row, seen = alone[i], full[i]
+        assert seen["other_cavs"]  # every synthetic row has other CAVs
+        assert np.array_equal(row["path"], seen["path"]) and row["commentary"] == seen["commentary"]
+        if row["other_cavs"]:  # left as it was
+            assert row["other_cavs"] == seen["other_cavs"] and row["partner_label"] == seen["partner_label"]
+            assert np.array_equal(np.asarray(row["merged_bev"]), np.asarray(seen["merged_bev"]))
+        else:  # what only the other CAVs give is gone, the partner label with it
+            assert np.array_equal(np.asarray(row["merged_bev"]), empty)
+            assert row["partner_label"] == -1 and row["communication"] == ""
+        dropped.append(not row["other_cavs"])
+    assert 0.25 < np.mean(dropped) < 0.75
+    assert dropped == [not alone[i]["other_cavs"] for i in range(len(train_rows))]  # the same every time
+    with pytest.raises(ValueError, match="cooperative_dropout"):
+        TrainConfig(data="d", out="o", cooperative_dropout=1.0)
+    with pytest.raises(ValueError, match="cooperative model"):
+        TrainConfig(data="d", out="o", cooperative_dropout=0.5, cooperative=False)
+
+
 def test_speed_dropout_hides_a_share_of_the_speeds_the_same_way_every_time(data: Path) -> None:
     train_rows, _, _ = load_split(TrainConfig(data=str(data), out="unused", val_fraction=0.0))
     aug = YawAugment(prob=1.0)

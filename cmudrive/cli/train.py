@@ -72,6 +72,13 @@ def train_model(
     speed_dropout: Annotated[
         float, typer.Option(help="share of training rows whose prompt leaves the speed out")
     ] = 0.0,
+    cooperative_dropout: Annotated[
+        float,
+        typer.Option(
+            help="share of V2V-VLA's training rows shown without the other CAVs and the merged image "
+            "(the camera alone steers them)"
+        ),
+    ] = 0.0,
     bucket_power: Annotated[
         float | None,
         typer.Option(
@@ -128,6 +135,7 @@ def train_model(
             standing_input=standing_input,
             init_from=str(init_from) if init_from else None,
             speed_dropout=speed_dropout,
+            cooperative_dropout=cooperative_dropout,
             bucket_power=bucket_power,
             num_workers=num_workers,
             compile=compile,

@@ -5,7 +5,8 @@ single samples of a route that also trains (:func:`load_split`); standing rows a
 (:func:`keep_rows`) and rows with a communication sentence repeated (:func:`repeat_rows`); each epoch
 draws its rows as a permutation (:class:`EpochSampler`) or by situation (:class:`BucketSampler`,
 ``--bucket-power``). :class:`DrivingDataset` reads rows a batch at a time (one Arrow take), decodes their
-stored images then and applies the camera-rotation augmentation (:mod:`cmudrive.model.augment`).
+stored images then and applies the camera-rotation augmentation (:mod:`cmudrive.model.augment`) and,
+for a share of the rows, speed dropout and cooperative-input dropout (:func:`drop_cooperative_inputs`).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from cmudrive.agents.control import expert_stops
 from cmudrive.data.schema import EXPERT_DRIVER
 from cmudrive.model.augment import YawAugment, rotate_sample
 from cmudrive.model.row import STANDING_SPEED, TRAIN_COLUMNS, standing_seconds
+from cmudrive.sensors.occupancy import OccupancyConfig, packed_to_rgb
 
 VIEW = "view"  # where a row was seen from, in the CAV's frame (zeros: the CAV's own view)
 DRIVER = "driver"  # who drove the CAV into the row's state ("expert", else closed-loop data)
@@ -266,7 +268,12 @@ class DrivingDataset(Dataset):
     lists to Python, image decoding) cost ~2 ms per row before, the grid another 2 ms."""
 
     def __init__(
-        self, table: Any, augment: YawAugment | None = None, seed: int = 0, speed_dropout: float = 0.0
+        self,
+        table: Any,
+        augment: YawAugment | None = None,
+        seed: int = 0,
+        speed_dropout: float = 0.0,
+        cooperative_dropout: float = 0.0,
     ) -> None:
         # the merged occupancy grid is read (as an array) only for the rows the augmentation rotates
         self.grids = None
@@ -277,6 +284,7 @@ class DrivingDataset(Dataset):
         self.augment = augment
         self.seed = seed
         self.speed_dropout = speed_dropout
+        self.cooperative_dropout = cooperative_dropout
         self.epoch = 0
 
     def set_epoch(self, epoch: int) -> None:
@@ -311,7 +319,21 @@ class DrivingDataset(Dataset):
                             expert_stops(np.array([row["speed"]]), np.array([row["target_speed"]]))[0]
                         )
                     row["speed"] = None
+        if self.cooperative_dropout:
+            for row, i in zip(rows, indices, strict=True):
+                if np.random.default_rng([self.seed, self.epoch, i, 2]).random() < self.cooperative_dropout:
+                    drop_cooperative_inputs(row)
         return rows
+
+
+def drop_cooperative_inputs(row: dict[str, Any]) -> None:
+    """``row`` (in place) as the cooperative model would see it alone: an empty merged occupancy image, no
+    other CAVs, and so no partner to name (the communication label becomes "none")."""
+    if row.get("merged_bev") is not None:
+        row["merged_bev"] = Image.fromarray(packed_to_rgb(np.zeros(OccupancyConfig().shape, np.uint8)))
+    row["other_cavs"] = []
+    row["communication"] = ""
+    row["partner_label"] = -1
 
 
 class EpochSampler(Sampler[int]):

@@ -81,6 +81,9 @@ class TrainConfig:
     communication_repeat: int = 1
     speed_input: bool = True  # the prompt states the CAV's speed (SimLingo); False: no speed anywhere
     speed_dropout: float = 0.0  # [-] share of training rows whose prompt leaves the speed out
+    # [-] share of a cooperative model's training rows shown without what the other CAVs give (empty
+    # merged image, no other CAVs, no partner): the camera alone must steer them (docs/model.md)
+    cooperative_dropout: float = 0.0
     standing_input: bool = False  # the prompt states how long the CAV has stood (ModelConfig)
     # a saved model folder (save_pretrained) whose weights start the run instead of fresh ones; its sizes
     # must be this configuration's (prompt settings may differ: fine-tuning with a new input)
@@ -108,6 +111,10 @@ class TrainConfig:
             raise ValueError(f"standing_keep must be in (0, 1], got {self.standing_keep}")
         if not 0.0 <= self.speed_dropout < 1.0:
             raise ValueError(f"speed_dropout must be in [0, 1), got {self.speed_dropout}")
+        if not 0.0 <= self.cooperative_dropout < 1.0:
+            raise ValueError(f"cooperative_dropout must be in [0, 1), got {self.cooperative_dropout}")
+        if self.cooperative_dropout and not self.cooperative:
+            raise ValueError("cooperative_dropout needs the cooperative model (no such inputs)")
         if self.bucket_power is not None and not 0.0 <= self.bucket_power <= 1.0:
             raise ValueError(f"bucket_power must be in [0, 1], got {self.bucket_power}")
         if self.speed_dropout and not self.speed_input:
@@ -230,7 +237,9 @@ class Trainer:
             init_weights(model, Path(config.init_from))
         if config.compile:
             model.backbone.model.language_model.compile(dynamic=True)
-        self.train_set = DrivingDataset(train_rows, config.augment, config.seed, config.speed_dropout)
+        self.train_set = DrivingDataset(
+            train_rows, config.augment, config.seed, config.speed_dropout, config.cooperative_dropout
+        )
         self.sampler: EpochSampler | BucketSampler = (
             EpochSampler(len(self.train_set), config.seed)
             if config.bucket_power is None
