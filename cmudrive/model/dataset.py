@@ -11,6 +11,7 @@ for a share of the rows, speed dropout and cooperative-input dropout (:func:`dro
 
 from __future__ import annotations
 
+import functools
 import io
 import math
 from collections.abc import Iterator, Sequence
@@ -330,10 +331,16 @@ def drop_cooperative_inputs(row: dict[str, Any]) -> None:
     """``row`` (in place) as the cooperative model would see it alone: an empty merged occupancy image, no
     other CAVs, and so no partner to name (the communication label becomes "none")."""
     if row.get("merged_bev") is not None:
-        row["merged_bev"] = Image.fromarray(packed_to_rgb(np.zeros(OccupancyConfig().shape, np.uint8)))
+        row["merged_bev"] = _empty_bev()
     row["other_cavs"] = []
     row["communication"] = ""
     row["partner_label"] = -1
+
+
+@functools.cache
+def _empty_bev() -> Image.Image:
+    """The merged image of no occupancy (the ego box only), drawn once: read-only for its users."""
+    return Image.fromarray(packed_to_rgb(np.zeros(OccupancyConfig().shape, np.uint8)))
 
 
 class EpochSampler(Sampler[int]):
