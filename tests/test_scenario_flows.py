@@ -289,3 +289,32 @@ def test_a_car_sumo_discarded_is_dropped_before_the_flow_reacts_to_its_first_col
         flow.update(snap)  # F:1 looks discarded, and a collision came in
     assert flow.collided and "F:1" not in flow.cars and "F:0" in flow.cars
     assert "F:1" not in commanded and "F:0" in commanded
+
+
+def test_a_flow_car_placed_before_a_stop_sign_departs_no_faster_than_it_could_stop(
+    mini_net: Path, mini: RoadMap
+) -> None:
+    """SUMO inserts a car before a link without right of way (here the mini network's stop sign at N) only
+    if it could stop at the line, else it discards it ("unpriorised junction too close";
+    cmudrive44's NonSignalizedJunctionRightTurn_1 and MergerIntoSlowTrafficV2_3 lost a flow car so). A
+    12 m/s ActorFlow car placed 10 m before the line departs slowly enough to stop there (SUMO's safe
+    speed), is in the world from its first tick and then, ignoring the stop sign as an ActorFlow car does,
+    drives through the junction and up to speed."""
+    cn = mini.lane("CN_1")
+    source = LanePoint(cn, float(mini.lane_length[cn]) - 12.5)  # the car's centre 10 m short of the line
+    sink = LanePoint(mini.lane("NNE_1"), 100.0)
+    v: list[float] = []
+    with World(WorldConfig(town=mini_net, seed=1), road_map=mini) as world:
+        rng = np.random.default_rng(0)
+        flow = VehicleFlow("F", world, mini, source, sink, (500.0, 500.0), 12.0, rng, True)
+        none = Controls(np.zeros(0), np.zeros(0), np.zeros(0))
+        snap = world.tick(none)
+        flow.update(snap)  # the first car
+        for _ in range(100):  # 5 s
+            snap = world.tick(none)
+            flow.update(snap)
+            r = np.flatnonzero(snap.ids == "F:0")
+            v.append(float(snap.speed[r[0]]) if len(r) else np.nan)
+    assert not np.isnan(v[0])  # inserted, not discarded
+    assert v[0] < 8.0  # [m/s] it could stop within the 10 m to the line
+    assert np.nanmax(v) == pytest.approx(12.0, abs=0.1)  # then the flow speed, through the junction

@@ -156,7 +156,7 @@ class VehicleFlow:
         pos = min(at.s + half, float(self.map.lane_length[at.lane]) - 0.1)
         speed = min(self.speed, kind.max_speed)  # SUMO refuses a departure above the type's top speed
         m = self.map
-        if self.red_ahead and np.any((m.link_from == at.lane) & (m.link_tls >= 0)):
+        if self._must_stop_ahead(at.lane):
             room = max(float(m.lane_length[at.lane]) - pos - 1.0, 0.0)  # [m] to the stop line
             bt = kind.decel * kind.tau  # SUMO's safe speed: stop within room after a reaction time tau
             speed = min(speed, float(np.sqrt(bt * bt + 2.0 * kind.decel * room) - bt))
@@ -183,6 +183,25 @@ class VehicleFlow:
         self.cars.append(car)
         self.born[car] = self.world.step_count
         self.gap = self._draw()
+
+    def _must_stop_ahead(self, lane: int) -> bool:
+        """A car departing on ``lane`` may have to stop at the end of it, so SUMO inserts it only as fast as
+        it could stop there: the flow's link leaving ``lane`` has no right of way (a minor, stop, all-way
+        or equal link: SUMO's "unpriorised junction too close"), or it is signalised and the lights ahead
+        stay red (``red_ahead``). The check is SUMO's, at insertion only: once driving, an imposed car
+        ignores right of way."""
+        m, lanes = self.map, self.path.path
+        at = np.flatnonzero(lanes == lane)
+        if not len(at) or at[0] + 1 >= len(lanes):
+            return False  # the lane is the path's last: no link ahead
+        nxt = lanes[at[0] + 1]
+        link = np.flatnonzero((m.link_from == lane) & ((m.link_via == nxt) | (m.link_to == nxt)))
+        if not len(link):  # not a step of the lane graph (should not happen): the lights decide alone
+            return self.red_ahead and bool(np.any((m.link_from == lane) & (m.link_tls >= 0)))
+        k = int(link[0])
+        if self.red_ahead and m.link_tls[k] >= 0:
+            return True
+        return m.link_tls[k] < 0 and not str(m.link_state[k]).isupper()
 
     def _hit_something(self) -> bool:
         """One of this flow's cars is in a collision of the last tick."""
