@@ -372,7 +372,8 @@ def test_baseline_runs_through_the_runner_with_the_checkpoint_option(
 
 
 def test_ablations_ignore_partner_requests_or_feed_the_own_occupancy(checkpoints: dict[str, Path]) -> None:
-    """partner_requests=False keeps the default partner; bev="own" draws the CAV's own occupancy."""
+    """partner_requests=False keeps the default partner; bev="own" draws the CAV's own occupancy;
+    other_cavs=False lists no other CAV (each CAV sees the other one, 10 m away, otherwise)."""
     plans = tuple(plan([(0, 0), (100, 0)]) for _ in range(2))
     own = np.zeros((2, 4, 192, 128), bool)
     own[:, 0, 10:20, 10:20] = True  # something only the own grid has
@@ -396,6 +397,10 @@ def test_ablations_ignore_partner_requests_or_feed_the_own_occupancy(checkpoints
     agent = V2VVLAAgent(checkpoint=checkpoints["coop"], bev="empty")
     agent.setup(RouteSetup("r", "mini", "ClearNoon", 0.05, plans))
     assert np.array_equal(agent.rows(obs)[0]["merged_bev"], occupancy_to_rgb(np.zeros_like(own))[0])
+    listed = [len(row["other_cavs"]) for row in agent.rows(obs)]
+    agent = V2VVLAAgent(checkpoint=checkpoints["coop"], other_cavs=False)
+    agent.setup(RouteSetup("r", "mini", "ClearNoon", 0.05, plans))
+    assert listed == [1, 1] and [row["other_cavs"] for row in agent.rows(obs)] == [[], []]
     with pytest.raises(ValueError, match="bev must be"):
         V2VVLAAgent(checkpoint=checkpoints["coop"], bev="none")
     with pytest.raises(ValueError, match="desired_speed must be"):

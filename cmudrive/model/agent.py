@@ -98,6 +98,7 @@ class V2VVLAAgent(Agent):
         device: str | None = None,
         partner_requests: bool = True,
         bev: str = "merged",
+        other_cavs: bool = True,
         camera_jpeg: bool = True,
         desired_speed: str = "query",
     ) -> None:
@@ -106,7 +107,8 @@ class V2VVLAAgent(Agent):
         Ablations of the cooperative model: ``partner_requests=False`` ignores the partner its sentences
         name (every CAV keeps the default partner, the closest CAV in front); ``bev="own"`` gives it the
         CAV's own occupancy instead of the merged one (no partner information in the image),
-        ``bev="empty"`` an image of no occupancy at all (what does the model take from the image?).
+        ``bev="empty"`` an image of no occupancy at all (what does the model take from the image?);
+        ``other_cavs=False`` lists no other CAV in the prompt (so the model has none to name either).
         ``camera_jpeg=False`` feeds the raw camera render instead of the dataset's JPEG round trip
         (which training saw; ~0.3 ms per CAV and tick, docs/model.md, "Row contract").
         ``desired_speed``, for a model with a speed query: ``"query"`` drives toward its predicted speed
@@ -122,6 +124,7 @@ class V2VVLAAgent(Agent):
         self.desired_speed = desired_speed
         self.partner_requests = partner_requests
         self.bev = bev
+        self.other_cavs = other_cavs
         self.camera_jpeg = camera_jpeg
         self.checkpoint = resolve_checkpoint(checkpoint, self.cooperative)
         self.language_every = language_every
@@ -172,7 +175,11 @@ class V2VVLAAgent(Agent):
             assert grid is not None
             if self.bev == "empty":
                 grid = np.zeros_like(grid)
-        return self.row_builder.model_rows(self.row_builder.inputs(obs, grid), jpeg=self.camera_jpeg)
+        rows = self.row_builder.model_rows(self.row_builder.inputs(obs, grid), jpeg=self.camera_jpeg)
+        if not self.other_cavs:
+            for row in rows:
+                row["other_cavs"] = []
+        return rows
 
     def run_step(self, obs: Observations) -> Controls:
         idx = np.asarray(obs.cav_index, np.int64)
