@@ -14,7 +14,7 @@ pytest.importorskip("peft", reason="the model needs the 'model' extra (torch, tr
 import torch
 
 from cmudrive.model import V2VVLA, VLABatch, get_config
-from cmudrive.model.modeling import answer_loss, positions, query_states
+from cmudrive.model.modeling import answer_loss, query_states, sequence_ego
 from cmudrive.model.processor import IGNORE_INDEX
 from tests.model_rows import make_row, rows
 
@@ -201,13 +201,18 @@ def test_waypoints_do_not_wait_for_language(model: V2VVLA) -> None:
 
 @pytest.mark.parametrize(
     "overrides",
-    [{}, {"text": {"num_layers": 3, "num_heads": 4, "num_kv_heads": 1}}, {"llm_training": "lora"}],
-    ids=["tiny", "3-layer-gqa", "lora"],
+    [
+        {},
+        {"text": {"num_layers": 3, "num_heads": 4, "num_kv_heads": 1}},
+        {"llm_training": "lora"},
+        {"path_inputs": "ego"},
+    ],
+    ids=["tiny", "3-layer-gqa", "lora", "ego-path"],
 )
 def test_query_states_equal_the_full_pass_at_the_queries(overrides: dict[str, object]) -> None:
     """The silent ticks' pass (the last layer at the queries alone) gives the full pass's final states at
-    the query positions, for rows of different prompt lengths (left padding), grouped-query attention
-    and LoRA adapters (made non-zero, so that skipping them would show)."""
+    the query positions, for rows of different prompt lengths (left padding), grouped-query attention,
+    LoRA adapters (made non-zero, so that skipping them would show) and the ego path's attention mask."""
     model = tiny(**overrides)
     with torch.no_grad():
         for name, p in model.named_parameters():
@@ -222,8 +227,9 @@ def test_query_states_equal_the_full_pass_at_the_queries(overrides: dict[str, ob
     layers = lm.layers
     with torch.no_grad():
         embeds = torch.cat([model.embed(batch), model.queries(3)], dim=1)
-        full = lm(inputs_embeds=embeds, attention_mask=mask, position_ids=positions(mask)).last_hidden_state
-        fast = query_states(lm, embeds, mask, q)
+        attend, pos = model._attention(batch, mask)
+        full = lm(inputs_embeds=embeds, attention_mask=attend, position_ids=pos).last_hidden_state
+        fast = query_states(lm, embeds, mask, q, sequence_ego(batch.ego_mask, model.config))
     assert fast.shape == (3, q, full.shape[-1])
     assert torch.allclose(fast, full[:, -q:], atol=1e-5)
     assert lm.layers is layers and not isinstance(lm.norm, torch.nn.Identity)  # the model is put back
@@ -302,3 +308,47 @@ def test_a_forward_pass_under_bf16_autocast_gives_the_fp32_loss(cooperative: boo
     assert mixed.loss is not None and exact.loss is not None and torch.isfinite(mixed.loss)
     assert abs(float(mixed.loss) - float(exact.loss)) < 0.05 * float(exact.loss)
     assert torch.allclose(mixed.path.float(), exact.path, atol=0.05, rtol=0.05)  # type: ignore[union-attr]
+
+
+def test_an_ego_path_does_not_depend_on_the_cooperative_inputs() -> None:
+    """path_inputs="ego": the same rows with another merged image and other CAVs listed (a different
+    number of them, so the prompt's length changes too) give the same path, in training's pass, in the
+    waypoints-only pass and in the pass that also decodes language; the speed waypoints, which read the
+    cooperative inputs, change."""
+    model = tiny(path_inputs="ego")
+    a = rows(3)
+    b = [{**r, "merged_bev": make_row(9, seed=5)["merged_bev"], "other_cavs": [[5, 20.0, 1.0, 0.0]] * (3 - i)}
+         for i, r in enumerate(a)]  # fmt: skip
+    assert [len(r["other_cavs"]) for r in a] != [len(r["other_cavs"]) for r in b]
+    with torch.no_grad():
+        out_a, out_b = model(model.processor(a)), model(model.processor(b))
+        pred_a = [model.predict(a, max_new_tokens=n) for n in (0, 3)]
+        pred_b = [model.predict(b, max_new_tokens=n) for n in (0, 3)]
+    assert out_a.path is not None and out_b.path is not None
+    assert torch.allclose(out_a.path, out_b.path, atol=1e-5)
+    assert not torch.allclose(out_a.speed_waypoints, out_b.speed_waypoints, atol=1e-3)
+    for pa, pb in zip(pred_a, pred_b, strict=True):
+        assert torch.allclose(pa.path, pb.path, atol=1e-5)
+        assert torch.allclose(pa.path, out_a.path, atol=1e-5)  # the prompt's pass = training's
+        assert not torch.allclose(pa.speed_waypoints, pb.speed_waypoints, atol=1e-3)
+    plain = tiny()  # every input reaches the path of the paper's model
+    with torch.no_grad():
+        assert not torch.allclose(plain.predict(a, 0).path, plain.predict(b, 0).path, atol=1e-3)
+
+
+def test_an_ego_path_prompt_puts_the_cooperative_part_last() -> None:
+    """The ego's part of the prompt is the baseline's prompt; the merged image and the other CAVs follow,
+    and the batch marks where they start."""
+    model, baseline = tiny(path_inputs="ego"), tiny(cooperative=False)
+    r = make_row(1)
+    ego, base = model.processor.prompt(r), baseline.processor.prompt(r)
+    assert ego.startswith(base) and "Other CAVs: 3" in ego[len(base) :]
+    batch = model.processor(rows(3), with_answer=False)
+    assert batch.ego_mask is not None
+    for ids, ego_mask, mask in zip(batch.input_ids, batch.ego_mask, batch.attention_mask, strict=True):
+        first = int(torch.nonzero(mask)[0])
+        n = int(ego_mask.sum())
+        assert ego_mask[first : first + n].all()  # one run from the prompt's first token ...
+        assert ids[first + n] == model.processor.image_start_id  # ... to the merged image's <img>
+    with pytest.raises(ValueError, match="path_inputs"):
+        get_config("tiny", path_inputs="ego", cooperative=False)

@@ -62,6 +62,13 @@ def train_model(
         bool,
         typer.Option(help='the prompt says how long the CAV stood ("Stopped for 2.5 s.", docs/model.md)'),
     ] = False,
+    ego_path: Annotated[
+        bool,
+        typer.Option(
+            help="V2V-VLA's path from the ego's own inputs only; the merged image and the other CAVs reach "
+            "its speed and language (docs/model.md)"
+        ),
+    ] = False,
     init_from: Annotated[
         Path | None,
         typer.Option(
@@ -133,6 +140,7 @@ def train_model(
             communication_repeat=communication_repeat,
             speed_input=speed_input,
             standing_input=standing_input,
+            ego_path=ego_path,
             init_from=str(init_from) if init_from else None,
             speed_dropout=speed_dropout,
             cooperative_dropout=cooperative_dropout,

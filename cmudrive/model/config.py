@@ -129,6 +129,12 @@ class ModelConfig:
     # controller's go/stop and desired speed come from it instead of from the speed waypoints
     # (docs/model.md, "Go/stop")
     speed_query: bool = False
+    # what the path queries may attend to: "all" (every input, the paper's model) or "ego" (the CAV's own
+    # camera, speed and target points only: the prompt puts the merged image and the other CAVs last, and
+    # neither the prompt before them nor the path queries can attend to them; the speed query, the speed
+    # waypoints and the language still read everything). Only for the cooperative model (docs/model.md,
+    # "Path from the ego's own inputs")
+    path_inputs: str = "all"
 
     def __post_init__(self) -> None:
         if self.pretrained_path is not None and (self.vision is not None or self.text is not None):
@@ -144,6 +150,10 @@ class ModelConfig:
             raise ValueError(f"bonnet_crop must be in [0, 1), got {self.bonnet_crop}")
         if self.bev_fit not in ("pad", "stretch"):
             raise ValueError(f"bev_fit must be pad or stretch, got {self.bev_fit!r}")
+        if self.path_inputs not in ("all", "ego"):
+            raise ValueError(f"path_inputs must be all or ego, got {self.path_inputs!r}")
+        if self.path_inputs == "ego" and not self.cooperative:
+            raise ValueError("path_inputs='ego' is for the cooperative model (the baseline sees no other)")
         if self.llm_training not in ("lora", "full", "frozen"):
             raise ValueError(f"llm_training must be lora, full or frozen, got {self.llm_training!r}")
 

@@ -177,6 +177,39 @@ def positions(mask: torch.Tensor) -> torch.Tensor:
     return (mask.cumsum(-1) - 1).clamp(min=0)
 
 
+def ego_attention(mask: torch.Tensor, ego: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The attention mask (B, 1, N, N) bool (True: may attend) and position ids (B, N) of a sequence whose
+    ``ego`` positions (B, N) bool (``path_inputs="ego"``: the prompt before its cooperative part, and the
+    path queries) see only each other: causal, padding (``mask`` (B, N), 0 on padding) masked, and an ego
+    position never attends to a non-ego one; every other position sees all before it. An ego position's
+    id counts only the ego positions before it, so the path does not even learn how long the cooperative
+    part is; the others count every position (:func:`positions`). Each position may attend to itself,
+    so that a padding position gets a finite state (nothing reads it)."""
+    n = mask.shape[1]
+    idx = torch.arange(n, device=mask.device)
+    valid = mask.bool()
+    allowed = (idx[None, :] <= idx[:, None])[None] & valid[:, None, :]  # (B, N, N) causal, no padding
+    allowed = allowed & (~ego[:, :, None] | ego[:, None, :])
+    allowed = allowed | torch.eye(n, dtype=torch.bool, device=mask.device)[None]
+    pos = torch.where(ego, positions((valid & ego).long()), positions(mask))
+    return allowed[:, None], pos
+
+
+def sequence_ego(
+    prompt_ego: torch.Tensor | None, config: ModelConfig, answer: int = 0
+) -> torch.Tensor | None:
+    """(B, L+Q+A) bool: the ego positions of prompt + queries + ``answer`` tokens (the prompt's from the
+    processor, then the path queries), or None when the model has no such limit."""
+    if prompt_ego is None:
+        return None
+    b = prompt_ego.shape[0]
+    first = 1 if config.speed_query else 0
+    queries = torch.zeros(config.n_queries, dtype=torch.bool, device=prompt_ego.device)
+    queries[first : first + config.n_path] = True
+    tail = torch.zeros(answer, dtype=torch.bool, device=prompt_ego.device)
+    return torch.cat([prompt_ego, torch.cat([queries, tail])[None].expand(b, -1)], dim=1)
+
+
 def _kv_cache(lm: Any, out: Any) -> tuple[str, Any]:
     """The keyword under which ``lm`` takes its key/value cache and the cache ``out`` returned. Later
     transformers 5 releases call both ``cache`` and warn on every call under the old name
@@ -188,7 +221,9 @@ def _kv_cache(lm: Any, out: Any) -> tuple[str, Any]:
     return "past_key_values", out["past_key_values"]
 
 
-def query_states(lm: Any, embeds: torch.Tensor, mask: torch.Tensor, q: int) -> torch.Tensor:
+def query_states(
+    lm: Any, embeds: torch.Tensor, mask: torch.Tensor, q: int, ego: torch.Tensor | None = None
+) -> torch.Tensor:
     """(B, Q, H): the language model's (a ``Qwen2Model``) final states at the last ``q`` positions of
     ``embeds`` (B, L+Q, H), equal to ``lm(...).last_hidden_state[:, -q:]`` but with the last decoder
     layer evaluated at those positions alone.
@@ -200,7 +235,8 @@ def query_states(lm: Any, embeds: torch.Tensor, mask: torch.Tensor, q: int) -> t
     layers before the last run through ``lm`` itself (its masks, rotary embedding and attention
     implementation); the last one is Qwen2's decoder layer written out with its own modules (norms,
     projections, rotary embedding, MLP) and PyTorch's SDPA, which transformers' ``sdpa`` path
-    also calls. Tests check it against the full pass."""
+    also calls. Tests check it against the full pass. ``ego`` (B, L+Q) bool: the positions that see only
+    each other (:func:`ego_attention`)."""
     from transformers.models.qwen2.modeling_qwen2 import repeat_kv, rotate_half
 
     layers, norm = lm.layers, lm.norm
@@ -208,10 +244,15 @@ def query_states(lm: Any, embeds: torch.Tensor, mask: torch.Tensor, q: int) -> t
     attn = last.self_attn
     if getattr(attn, "sliding_window", None) is not None:
         raise ValueError("query_states does not handle sliding-window attention")
-    pos = positions(mask)
+    full: torch.Tensor | None = None
+    if ego is None:
+        pos, lm_mask = positions(mask), mask
+    else:
+        full, pos = ego_attention(mask, ego)
+        lm_mask = full
     try:  # the layers before the last, as lm runs them; restored whatever happens
         lm.layers, lm.norm = nn.ModuleList(list(layers)[:-1]), nn.Identity()
-        hidden = lm(inputs_embeds=embeds, attention_mask=mask, position_ids=pos, use_cache=False)
+        hidden = lm(inputs_embeds=embeds, attention_mask=lm_mask, position_ids=pos, use_cache=False)
     finally:
         lm.layers, lm.norm = layers, norm
     h = hidden.last_hidden_state  # (B, L+Q, H)
@@ -226,9 +267,13 @@ def query_states(lm: Any, embeds: torch.Tensor, mask: torch.Tensor, q: int) -> t
     query = query * cos[:, :, -q:] + rotate_half(query) * sin[:, :, -q:]
     key = key * cos + rotate_half(key) * sin
     key, value = repeat_kv(key, attn.num_key_value_groups), repeat_kv(value, attn.num_key_value_groups)
-    rows = torch.arange(n - q, n, device=mask.device)
-    allowed = (torch.arange(n, device=mask.device)[None, :] <= rows[:, None]) & mask.bool()[:, None, :]
-    out = F.scaled_dot_product_attention(query, key, value, attn_mask=allowed[:, None], scale=attn.scaling)
+    if full is None:
+        rows = torch.arange(n - q, n, device=mask.device)
+        allowed = (torch.arange(n, device=mask.device)[None, :] <= rows[:, None]) & mask.bool()[:, None, :]
+        allowed = allowed[:, None]
+    else:
+        allowed = full[:, :, -q:]
+    out = F.scaled_dot_product_attention(query, key, value, attn_mask=allowed, scale=attn.scaling)
     h = h[:, -q:] + attn.o_proj(out.transpose(1, 2).reshape(b, q, -1))
     h = h + last.mlp(last.post_attention_layernorm(h))
     return cast(torch.Tensor, norm(h))
@@ -350,7 +395,8 @@ class V2VVLA(nn.Module):
             )
         embeds, mask = torch.cat(parts, dim=1), torch.cat(masks, dim=1)  # (B, L+Q+A, H), (B, L+Q+A)
         lm = self.backbone.model.language_model
-        states = lm(inputs_embeds=embeds, attention_mask=mask, position_ids=positions(mask)).last_hidden_state
+        attend, pos = self._attention(batch, mask)
+        states = lm(inputs_embeds=embeds, attention_mask=attend, position_ids=pos).last_hidden_state
         path, speed = self.waypoints(states[:, length : length + q])  # (B, n_path, 2), (B, n_speed, 2)
         out = VLAOutput(path=path, speed_waypoints=speed)
         speeds = self.speeds(states[:, length : length + q])
@@ -369,6 +415,15 @@ class V2VVLA(nn.Module):
                 out.speed_loss = speed_loss(out.target_speed, out.stop_logit, batch.target_speed, batch.stop)
             out.loss = out.lm_loss + out.waypoint_loss + out.speed_loss
         return out
+
+    def _attention(self, batch: VLABatch, mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(attention mask, position ids) of prompt + queries (+ answer) with padding mask ``mask``: the 2D
+        mask as it is, or with ``path_inputs="ego"`` the 4D mask of :func:`ego_attention`."""
+        answer = mask.shape[1] - batch.input_ids.shape[1] - self.config.n_queries
+        ego = sequence_ego(batch.ego_mask, self.config, answer)
+        if ego is None:
+            return mask, positions(mask)
+        return ego_attention(mask, ego)
 
     # ---- closed-loop inference ----------------------------------------------------------------------
     @torch.no_grad()
@@ -400,9 +455,10 @@ class V2VVLA(nn.Module):
         lm = self.backbone.model.language_model
         answer_ids: list[list[int]] = [[] for _ in range(b)]
         if max_new_tokens == 0:  # waypoints only: the last layer at the query positions alone
-            states = query_states(lm, embeds, mask, q)
+            states = query_states(lm, embeds, mask, q, sequence_ego(batch.ego_mask, self.config))
         else:
-            out = lm(inputs_embeds=embeds, attention_mask=mask, position_ids=positions(mask), use_cache=True)
+            attend, pos = self._attention(batch, mask)
+            out = lm(inputs_embeds=embeds, attention_mask=attend, position_ids=pos, use_cache=True)
             states = out.last_hidden_state[:, -q:]
         path, speed = self.waypoints(states)
         speeds = self.speeds(states)

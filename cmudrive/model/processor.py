@@ -23,6 +23,10 @@ the answer apart (right-padded): the commentary,
 and for the cooperative model " Communication: " followed by the communication sentence or "none.", then
 ``</s>``. The model puts its waypoint queries between the two (:class:`cmudrive.model.V2VVLA`): prompt,
 queries, answer.
+
+With ``path_inputs="ego"`` the cooperative part goes last, after the baseline's whole prompt:
+"<img> camera </img>\\n [speed] Target waypoint: ... {task}\\n<img> BEV </img> Other CAVs: ...", and the
+batch's ``ego_mask`` marks the tokens before that second ``<img>``: all that the path may read.
 """
 
 from __future__ import annotations
@@ -70,6 +74,9 @@ class VLABatch:
     attention_mask: torch.Tensor  # (B, L) int64, 0 on padding
     target_points: torch.Tensor  # (B, 2, 2) float32 [m], ego frame
     cav_poses: torch.Tensor | None = None  # (M, 3) float32 x, y [m], yaw [rad] of the listed CAVs, row order
+    # (B, L) bool, path_inputs="ego": the prompt's tokens before the cooperative part (the merged image and
+    # the other CAVs, last in the prompt), which they and the path queries cannot see; None: no such limit
+    ego_mask: torch.Tensor | None = None
     answer_ids: torch.Tensor | None = None  # (B, A) int64, the answer and </s>, right-padded
     labels: torch.Tensor | None = None  # (B, A) int64, answer_ids with IGNORE_INDEX on the padding
     path: torch.Tensor | None = None  # (B, n_path, 2) float32 [m]
@@ -140,6 +147,9 @@ class VLAProcessor:
         self.tokens_per_image = tokens_per_image  # visual tokens per tile after pixel shuffle
         vocab = tokenizer.get_vocab()
         self.image_token_id = vocab[IMG_CONTEXT]
+        self.image_start_id = vocab.get(IMG_START, -1)
+        if config.cooperative and config.path_inputs == "ego" and self.image_start_id < 0:
+            raise ValueError(f"path_inputs='ego' needs the {IMG_START} token, which the tokenizer lacks")
         self.target_point_token_id = vocab[TARGET_POINT]
         self.cav_point_token_id = vocab.get(CAV_POINT, -1)
         if config.cav_tokens and self.cav_point_token_id < 0:
@@ -148,6 +158,11 @@ class VLAProcessor:
             raise ValueError("the tokenizer needs an eos and a pad token")
         self.eos_token_id = int(tokenizer.eos_token_id)
         self.pad_token_id = int(tokenizer.pad_token_id)
+
+    @property
+    def ego_path(self) -> bool:
+        """The path queries see only the ego's own inputs (``path_inputs="ego"``, cooperative models)."""
+        return self.config.cooperative and self.config.path_inputs == "ego"
 
     @classmethod
     def from_config(
@@ -244,10 +259,14 @@ class VLAProcessor:
             text = standing_text(row["standing"]) + text
         if self.config.speed_in_prompt and row["speed"] is not None:  # None: dropped in training
             text = f"Current speed: {float(row['speed']):.1f} m/s. {text}"
-        if self.config.cooperative:
-            images += IMG_START + ctx + IMG_END
-            text += " " + self.others_text(row.get("other_cavs") or [])
-        text = f"{images}\n{text} {self.config.task_prompt}"
+        if self.config.cooperative and self.config.path_inputs == "ego":  # the cooperative part last
+            shared = f"{IMG_START}{ctx}{IMG_END} {self.others_text(row.get('other_cavs') or [])}"
+            text = f"{images}\n{text} {self.config.task_prompt}\n{shared}"
+        else:
+            if self.config.cooperative:
+                images += IMG_START + ctx + IMG_END
+                text += " " + self.others_text(row.get("other_cavs") or [])
+            text = f"{images}\n{text} {self.config.task_prompt}"
         if self.config.chat_template:
             messages = [{"role": "user", "content": text}]
             text = str(
@@ -283,6 +302,8 @@ class VLAProcessor:
             if self.config.cav_tokens and self.config.cooperative:
                 if ids.count(self.cav_point_token_id) != len(self.listed_cavs(row.get("other_cavs") or [])):
                     raise ValueError("the prompt's CAV placeholders did not tokenize one to one")
+            if self.ego_path and ids.count(self.image_start_id) != 2:
+                raise ValueError(f"the prompt's {IMG_START} markers did not tokenize one to one")
         if not with_answer:
             return [(list(ids), []) for ids in prompts]
         lead = "" if self.config.chat_template else " "
@@ -313,6 +334,9 @@ class VLAProcessor:
             attention_mask=mask,
             target_points=_stack(rows, "target_points", (2, 2)),
         )
+        if self.ego_path:  # the ego's part of each prompt: from its first token to the merged image's <img>
+            start = (input_ids == self.image_start_id).long().cumsum(-1)
+            batch.ego_mask = mask.bool() & (start < 2)
         if self.config.cav_tokens and self.config.cooperative:
             poses = [c[1:4] for r in rows for c in self.listed_cavs(r.get("other_cavs") or [])]
             batch.cav_poses = torch.from_numpy(np.asarray(poses, np.float32).reshape(-1, 3))

@@ -85,6 +85,8 @@ class TrainConfig:
     # merged image, no other CAVs, no partner): the camera alone must steer them (docs/model.md)
     cooperative_dropout: float = 0.0
     standing_input: bool = False  # the prompt states how long the CAV has stood (ModelConfig)
+    # the cooperative model's path from the ego's own inputs only (ModelConfig.path_inputs="ego")
+    ego_path: bool = False
     # a saved model folder (save_pretrained) whose weights start the run instead of fresh ones; its sizes
     # must be this configuration's (prompt settings may differ: fine-tuning with a new input)
     init_from: str | None = None
@@ -113,6 +115,8 @@ class TrainConfig:
             raise ValueError(f"speed_dropout must be in [0, 1), got {self.speed_dropout}")
         if not 0.0 <= self.cooperative_dropout < 1.0:
             raise ValueError(f"cooperative_dropout must be in [0, 1), got {self.cooperative_dropout}")
+        if self.ego_path and not self.cooperative:
+            raise ValueError("ego_path needs the cooperative model (the baseline sees only its own inputs)")
         if self.cooperative_dropout and not self.cooperative:
             raise ValueError("cooperative_dropout needs the cooperative model (no such inputs)")
         if self.bucket_power is not None and not 0.0 <= self.bucket_power <= 1.0:
@@ -142,6 +146,8 @@ class TrainConfig:
             extra["speed_in_prompt"] = False
         if self.standing_input:
             extra["standing_in_prompt"] = True
+        if self.ego_path:
+            extra["path_inputs"] = "ego"
         return get_config(self.model, cooperative=self.cooperative, **extra)
 
     def to_dict(self) -> dict[str, Any]:
