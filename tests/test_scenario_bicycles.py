@@ -158,19 +158,15 @@ def test_a_car_sumo_discards_at_insertion_leaves_the_flow(
 
     from cmudrive.bench.scenarios import flows
 
-    original_init, original_update = flows.VehicleFlow.__init__, flows.VehicleFlow.update
+    original_update = flows.VehicleFlow.update
     ghosts: list[list[str]] = []
-
-    def init(self: flows.VehicleFlow, *args: object, **kwargs: object) -> None:
-        kwargs["red_ahead"] = False
-        original_init(self, *args, **kwargs)  # type: ignore[arg-type]
 
     def update(self: flows.VehicleFlow, snap: object) -> None:
         original_update(self, snap)  # type: ignore[arg-type]
         known = set(libsumo.vehicle.getIDList()) | set(libsumo.simulation.getPendingVehicles())
         ghosts.append([c for c in self.cars if c not in known and self.born[c] < self.world.step_count])
 
-    monkeypatch.setattr(flows.VehicleFlow, "__init__", init)
+    monkeypatch.setattr(flows.VehicleFlow, "_must_stop_ahead", lambda self, lane: False)
     monkeypatch.setattr(flows.VehicleFlow, "update", update)
     _, spec, _ = downtown()
     _, log = run(spec, tmp_path, config=EvalConfig(background=EMPTY, tick_cap=200))

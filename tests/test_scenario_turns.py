@@ -78,9 +78,13 @@ def test_turn_flow_comes_from_the_named_approach(
     rel = (end_heading(m, int(proj.lane[0])) - end_heading(m, ia) + math.pi) % (2 * math.pi) - math.pi
     want = math.pi if "LeftTurn" in kind else -math.pi / 2
     assert abs((rel - want + math.pi) % (2 * math.pi) - math.pi) < math.radians(35.0), (rel, want)
-    # each car drives at the imposed speed; SUMO may only lower it (no driving through a CAV in its way)
+    # each car drives at the imposed speed; SUMO may only lower it (no driving through a CAV in its way).
+    # A car that departs before the signal departs no faster than it could stop at the line: those seen
+    # for 5 s or more have reached the flow speed
     top = np.array([np.nanmax(track(log, c)[:, 3]) for c in cars])
-    assert top == pytest.approx(SPEED, abs=0.05)
+    seen_s = np.array([np.count_nonzero(~np.isnan(track(log, c)[:, 3])) * 0.05 for c in cars])
+    assert np.all(top <= SPEED + 0.05)
+    assert np.count_nonzero(seen_s >= 5.0) >= 2 and top[seen_s >= 5.0] == pytest.approx(SPEED, abs=0.05)
     act, end = seen[0]
     if kind.startswith("Signalized"):
         link = int(np.flatnonzero((m.link_from == ia) & (m.link_tls >= 0))[0])

@@ -73,7 +73,7 @@ class CrossingBicycleFlow(Scenario):
         try:
             self.flow = VehicleFlow(
                 f"{self.spec.name}:bikes", self.ctx.world, m, source, sink, gap, v, self.ctx.rng, True,
-                type_name=BIKE_TYPE, lanes=bike, red_ahead=True,
+                type_name=BIKE_TYPE, lanes=bike,
             )  # fmt: skip
         except RouteError as exc:
             raise self.error(f"no place for the bicycle flow: {exc}") from None

@@ -58,15 +58,12 @@ class VehicleFlow:
         imposed: bool,
         type_name: str = FLOW_TYPE,
         lanes: np.ndarray | None = None,
-        red_ahead: bool = False,
     ) -> None:
         """``type_name``: the actor type of the flow's vehicles; ``lanes``: (N,) bool mask of the lanes its
-        path may use (default the driving lanes; the bike lanes for a bicycle flow); ``red_ahead``: the
-        lights ahead of the flow stay red (the vehicles ignore them), so a vehicle inserted on a signalised
-        lane departs no faster than it could stop at the line (SUMO refuses to insert it otherwise)."""
+        path may use (default the driving lanes; the bike lanes for a bicycle flow)."""
         self.name, self._world, self.map = name, world, road_map
         self.source, self.sink, self.gap_range, self.speed = source, sink, gap, float(speed)
-        self.rng, self.imposed, self.type_name, self.red_ahead = rng, imposed, type_name, red_ahead
+        self.rng, self.imposed, self.type_name = rng, imposed, type_name
         path = flow_path(road_map, source, sink, lanes)
         self.path = path
         self.path_length = path.length  # [m]
@@ -186,22 +183,20 @@ class VehicleFlow:
 
     def _must_stop_ahead(self, lane: int) -> bool:
         """A car departing on ``lane`` may have to stop at the end of it, so SUMO inserts it only as fast as
-        it could stop there: the flow's link leaving ``lane`` has no right of way (a minor, stop, all-way
-        or equal link: SUMO's "unpriorised junction too close"), or it is signalised and the lights ahead
-        stay red (``red_ahead``). The check is SUMO's, at insertion only: once driving, an imposed car
-        ignores right of way."""
+        it could stop there (else it discards the car): the flow's link leaving ``lane`` is signalised (the
+        light may be red, or forced red for the scenario: "never switches to 'G'") or has no right of way
+        (a minor, stop, all-way or equal link: "unpriorised junction too close"). The check is SUMO's, at
+        insertion only: once driving, an ActorFlow car ignores lights and right of way."""
         m, lanes = self.map, self.path.path
         at = np.flatnonzero(lanes == lane)
         if not len(at) or at[0] + 1 >= len(lanes):
             return False  # the lane is the path's last: no link ahead
         nxt = lanes[at[0] + 1]
         link = np.flatnonzero((m.link_from == lane) & ((m.link_via == nxt) | (m.link_to == nxt)))
-        if not len(link):  # not a step of the lane graph (should not happen): the lights decide alone
-            return self.red_ahead and bool(np.any((m.link_from == lane) & (m.link_tls >= 0)))
+        if not len(link):  # not a step of the lane graph (should not happen): any light ahead decides
+            return bool(np.any((m.link_from == lane) & (m.link_tls >= 0)))
         k = int(link[0])
-        if self.red_ahead and m.link_tls[k] >= 0:
-            return True
-        return m.link_tls[k] < 0 and not str(m.link_state[k]).isupper()
+        return bool(m.link_tls[k] >= 0 or not str(m.link_state[k]).isupper())
 
     def _hit_something(self) -> bool:
         """One of this flow's cars is in a collision of the last tick."""
