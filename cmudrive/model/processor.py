@@ -148,7 +148,7 @@ class VLAProcessor:
         vocab = tokenizer.get_vocab()
         self.image_token_id = vocab[IMG_CONTEXT]
         self.image_start_id = vocab.get(IMG_START, -1)
-        if config.cooperative and config.path_inputs == "ego" and self.image_start_id < 0:
+        if self.ego_path and self.image_start_id < 0:
             raise ValueError(f"path_inputs='ego' needs the {IMG_START} token, which the tokenizer lacks")
         self.target_point_token_id = vocab[TARGET_POINT]
         self.cav_point_token_id = vocab.get(CAV_POINT, -1)
@@ -161,8 +161,9 @@ class VLAProcessor:
 
     @property
     def ego_path(self) -> bool:
-        """The path queries see only the ego's own inputs (``path_inputs="ego"``, cooperative models)."""
-        return self.config.cooperative and self.config.path_inputs == "ego"
+        """The path queries see only the ego's own inputs (``path_inputs="ego"``; the configuration allows it
+        for the cooperative model only)."""
+        return self.config.path_inputs == "ego"
 
     @classmethod
     def from_config(
@@ -259,7 +260,7 @@ class VLAProcessor:
             text = standing_text(row["standing"]) + text
         if self.config.speed_in_prompt and row["speed"] is not None:  # None: dropped in training
             text = f"Current speed: {float(row['speed']):.1f} m/s. {text}"
-        if self.config.cooperative and self.config.path_inputs == "ego":  # the cooperative part last
+        if self.ego_path:  # the cooperative part last
             shared = f"{IMG_START}{ctx}{IMG_END} {self.others_text(row.get('other_cavs') or [])}"
             text = f"{images}\n{text} {self.config.task_prompt}\n{shared}"
         else:

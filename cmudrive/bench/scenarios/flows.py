@@ -193,8 +193,8 @@ class VehicleFlow:
             return False  # the lane is the path's last: no link ahead
         nxt = lanes[at[0] + 1]
         link = np.flatnonzero((m.link_from == lane) & ((m.link_via == nxt) | (m.link_to == nxt)))
-        if not len(link):  # not a step of the lane graph (should not happen): any light ahead decides
-            return bool(np.any((m.link_from == lane) & (m.link_tls >= 0)))
+        if not len(link):  # consecutive lanes of a planned path are always linked
+            return False
         k = int(link[0])
         return bool(m.link_tls[k] >= 0 or not str(m.link_state[k]).isupper())
 
