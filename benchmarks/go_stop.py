@@ -17,9 +17,10 @@ rule to the expert's own speed waypoints and to its desired speed: what a perfec
 decide.
 
 Rows are the validation routes of ``cmudrive train``'s default split (every k-th row up to ``--rows``),
-counted per situation: the CAV stands (below 0.1 m/s) and the expert drives off or stays; it moves and the
-expert drives on or brakes. Printed: the share of rows where the decision is the expert's, per situation
-and over all rows.
+counted per situation: the CAV stands (below 0.1 m/s) and the expert drives off - at the route's start
+(every CAV stands at t = 0, in front of an open road) or later (after a stop sign, a light, a queue: the
+drive-offs the closed loop hangs on) - or stays; it moves and the expert drives on or brakes. Printed: the
+share of rows where the decision is the expert's, per situation and over all rows.
 """
 
 from __future__ import annotations
@@ -33,22 +34,25 @@ from ablation import held_out_rows
 from cmudrive.agents.control import STOPPED_SPEED, brakes, desired_speed, expert_stops
 from cmudrive.model import V2VVLA
 
+ROUTE_START = 2.0  # [s] a drive-off before this is the route's start (every CAV stands at t = 0)
 SITUATIONS = (
-    "stands, expert drives off",
+    "stands, expert drives off at the route's start",
+    "stands, expert drives off later",
     "stands, expert stays",
     "moves, expert drives",
     "moves, expert brakes",
 )
 
 
-def situations(speed: np.ndarray, expert: np.ndarray) -> dict[str, np.ndarray]:
-    """Row masks of the four situations."""
+def situations(speed: np.ndarray, expert: np.ndarray, time: np.ndarray) -> dict[str, np.ndarray]:
+    """Row masks of the five situations (``time``: the rows' simulation time [s])."""
     standing = speed < STOPPED_SPEED
     return dict(
         zip(
             SITUATIONS,
             (
-                standing & ~expert,
+                standing & ~expert & (time < ROUTE_START),
+                standing & ~expert & (time >= ROUTE_START),
                 standing & expert,
                 ~standing & ~expert,
                 ~standing & expert,
@@ -58,10 +62,12 @@ def situations(speed: np.ndarray, expert: np.ndarray) -> dict[str, np.ndarray]:
     )
 
 
-def decision_table(speed: np.ndarray, expert: np.ndarray, stops: np.ndarray) -> dict[str, tuple[float, int]]:
+def decision_table(
+    speed: np.ndarray, expert: np.ndarray, time: np.ndarray, stops: np.ndarray
+) -> dict[str, tuple[float, int]]:
     """Agreement of the decisions ``stops`` (N,) bool with the expert's, per situation and over all rows:
     name -> (share of the rows where they agree, number of rows)."""
-    masks = {**situations(speed, expert), "all rows": np.ones(len(speed), bool)}
+    masks = {**situations(speed, expert, time), "all rows": np.ones(len(speed), bool)}
     return {
         name: (float(np.mean(stops[m] == expert[m])) if m.any() else float("nan"), int(m.sum()))
         for name, m in masks.items()
@@ -107,14 +113,15 @@ def main() -> None:
     ]
     _, rows, _ = held_out_rows(args.data, args.rows)
     speed = np.array([float(r["speed"]) for r in rows])
+    time = np.array([float(r["time"]) for r in rows])
     expert = expert_stops(speed, np.array([float(r["target_speed"]) for r in rows]))
     expert_wp = np.stack([np.asarray(r["speed_waypoints"], np.float64) for r in rows])
     tables = {
         "the expert's speed waypoints, SimLingo's rule": decision_table(
-            speed, expert, brakes(speed, desired_speed(expert_wp))
+            speed, expert, time, brakes(speed, desired_speed(expert_wp))
         ),
         "the expert's desired speed, SimLingo's rule": decision_table(
-            speed, expert, brakes(speed, np.array([float(r["desired_speed"]) for r in rows]))
+            speed, expert, time, brakes(speed, np.array([float(r["desired_speed"]) for r in rows]))
         ),
     }
     for path in checkpoints:
@@ -122,9 +129,9 @@ def main() -> None:
         rule, head = model_stops(model, rows, speed)
         if head is not None:
             tables[f"{path}, rule on its speed (or stop head) (what the agent uses)"] = decision_table(
-                speed, expert, head
+                speed, expert, time, head
             )
-        tables[f"{path}, its speed waypoints, SimLingo's rule"] = decision_table(speed, expert, rule)
+        tables[f"{path}, its speed waypoints, SimLingo's rule"] = decision_table(speed, expert, time, rule)
     counts = next(iter(tables.values()))
     print(f"{len(rows)} held-out rows; share of rows where the decision is the expert's:")
     print("| decisions of | " + " | ".join(f"{n} ({c[1]})" for n, c in counts.items()) + " |")
