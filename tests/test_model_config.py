@@ -33,7 +33,7 @@ def test_named_configs_and_overrides() -> None:
 
 def test_the_committed_checkpoints_were_saved_with_named_configurations() -> None:
     """Retraining with --config tiny-v1 builds the first pair's architecture and inputs, --config tiny
-    (the default) the defaults'."""
+    (the default) the defaults' (with their flags: --baseline, --no-speed-input, --ego-path)."""
     import json
     from pathlib import Path
 
@@ -47,7 +47,10 @@ def test_the_committed_checkpoints_were_saved_with_named_configurations() -> Non
     ):
         saved = ModelConfig.from_dict(json.loads((models / name / "vla_config.json").read_text())["config"])
         rebuilt = get_config(
-            config, cooperative=saved.cooperative, speed_in_prompt=saved.speed_in_prompt
+            config,
+            cooperative=saved.cooperative,
+            speed_in_prompt=saved.speed_in_prompt,
+            path_inputs=saved.path_inputs,  # --ego-path: the default V2V-VLA's
         ).replace(name=saved.name)
         assert rebuilt == saved, name
 
