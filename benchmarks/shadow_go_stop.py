@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from cmudrive.agents.base import Observation, Observations, RouteSetup
+from cmudrive.agents.base import AgentSetupError, Observation, Observations, RouteSetup
 from cmudrive.agents.control import STOPPED_SPEED, brakes, expert_stops
 from cmudrive.agents.expert import ExpertAgent
 from cmudrive.model.agent import load_checkpoint, resolve_checkpoint
@@ -55,11 +55,15 @@ class ShadowGoStop(ExpertAgent):
         self.out, self.every, self.cooperative = Path(out), every, cooperative
         self.checkpoint = resolve_checkpoint(checkpoint, cooperative)
         self.model: Any = None
+        self.route_id: str | None = None  # set once the route is set up: destroy() writes only then
 
     def setup(self, route: RouteSetup) -> None:
+        self.route_id = None
         super().setup(route)
         if self.model is None:
             self.model = load_checkpoint(self.checkpoint, "cpu", self.cooperative)
+            if not self.model.config.speed_query:
+                raise AgentSetupError(f"{self.checkpoint}: a model without a speed query; go/stop needs one")
         self.route_id = route.route_id
         self.row_builder = RowBuilder(route.cavs)
         self.rows: list[dict[str, Any]] = []
@@ -67,9 +71,8 @@ class ShadowGoStop(ExpertAgent):
     def run_step(self, obs: Observations) -> Controls:
         controls = super().run_step(obs)
         grid = obs.merged_occupancy if self.cooperative else None
-        inputs = self.row_builder.inputs(
-            obs, grid
-        )  # every tick: the standing clock and target points advance
+        # every tick: the standing clock and the target points advance
+        inputs = self.row_builder.inputs(obs, grid)
         speed = np.asarray(obs.speed, np.float64)
         standing = np.flatnonzero(speed < STOPPED_SPEED)
         if obs.tick % self.every or not len(standing):
@@ -98,6 +101,8 @@ class ShadowGoStop(ExpertAgent):
         return controls
 
     def destroy(self) -> None:
+        if self.route_id is None:
+            return
         self.out.mkdir(parents=True, exist_ok=True)
         record = {"route_id": self.route_id, "checkpoint": str(self.checkpoint), "rows": self.rows}
         (self.out / f"{self.route_id}.json").write_text(json.dumps(record))
