@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from go_stop import ROUTE_START
 
 from cmudrive.agents.base import AgentSetupError, Observation, Observations, RouteSetup
 from cmudrive.agents.control import STOPPED_SPEED, brakes, expert_stops
@@ -35,7 +36,6 @@ from cmudrive.model.agent import load_checkpoint, resolve_checkpoint
 from cmudrive.model.row import RowBuilder
 from cmudrive.sim.dynamics import Controls
 
-ROUTE_START = 2.0  # [s] a drive-off before this is the route's start (as benchmarks/go_stop.py)
 SITUATIONS = ("drives off at the start", "drives off later", "stays")
 
 
