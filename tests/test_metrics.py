@@ -20,6 +20,7 @@ from cmudrive.bench.metrics import (
     route_result,
     route_scores,
     summarize,
+    v2v_totals,
 )
 from cmudrive.bench.records import (
     INFRACTION_KEYS,
@@ -288,7 +289,7 @@ def test_summary_breakdowns():
     assert set(s) >= {
         "driving_score", "success_rate", "num_routes", "num_expected", "num_crashed", "efficiency",
         "comfortness", "multi_ability", "by_scenario_type", "by_ability", "by_weather", "by_num_cavs",
-        "infractions_per_km",
+        "infractions_per_km", "v2v",
     }  # fmt: skip
     assert list(s["by_scenario_type"]) == ["Accident", "InvadingTurn"]
     assert s["by_scenario_type"]["Accident"] == {"driving_score": 75.0, "success_rate": 50.0, "num_routes": 2}
@@ -298,6 +299,29 @@ def test_summary_breakdowns():
     assert s["by_num_cavs"]["2"]["num_routes"] == 2
     assert list(s["by_ability"]) == ["Overtaking", "Give_Way"]
     assert s["multi_ability"]["Overtaking"] == 50.0 and s["multi_ability"]["Give_Way"] == 0.0
+
+
+def test_v2v_totals_sum_the_routes_counters_and_the_share_of_named_partners():
+    a, b, none = three_routes()
+    a.v2v = {
+        "messages": 100,
+        "bytes": 100 * 12316,
+        "cav_ticks": 120,
+        "named": 30,
+        "named_taken": 24,
+        "bytes_per_message": 12316.0,
+    }
+    b.v2v = {"messages": 40, "bytes": 40 * 12316, "cav_ticks": 80, "named": 10, "named_taken": 10,
+             "bytes_per_message": 12316.0}  # fmt: skip
+    total = v2v_totals([a, b, none])  # the route without counters (no V2V) adds nothing
+    assert total is not None
+    assert (total["messages"], total["cav_ticks"], total["named"], total["named_taken"]) == (140, 200, 40, 34)
+    assert total["bytes_per_message"] == 12316.0
+    assert total["named_share"] == pytest.approx(0.2)  # 40 of 200 partner choices named by the agent
+    assert summarize([a, b, none])["v2v"] == total
+    b.v2v = {"messages": 0, "bytes": 0}  # an older record without the partner counters
+    assert v2v_totals([b])["named_share"] is None  # type: ignore[index]
+    assert v2v_totals([none]) is None and summarize([none])["v2v"] is None
 
 
 def test_summary_efficiency_and_comfort_average_cavs_then_routes():

@@ -83,16 +83,22 @@ def test_declared_sensors_and_v2v_arrive_batched() -> None:
     assert result.v2v is not None
     assert result.v2v["messages"] == 2 * TICKS and result.v2v["bytes"] == 2 * TICKS * 12316
     assert result.v2v["received"] == 2 * TICKS
+    # two partner choices per tick, none named by this agent: the default partner every time
+    assert result.v2v["cav_ticks"] == 2 * TICKS and result.v2v["named"] == result.v2v["named_taken"] == 0
 
 
 def test_an_agent_names_the_partner_for_the_next_tick() -> None:
     Cooperative.seen.clear()
-    evaluate_route(three_cavs(), Cooperative, EvalConfig(tick_cap=30, background=TRAFFIC))
+    result = evaluate_route(three_cavs(), Cooperative, EvalConfig(tick_cap=30, background=TRAFFIC))
     # by default CAV 0 talks to CAV 1 (40 m ahead; CAV 2 is 65 m ahead, within the 70 m range); the
     # agent names CAV 2 after tick 20, so from tick 21 on CAV 0 receives CAV 2's map
     assert Cooperative.seen[20].partner.tolist() == [1, 2, 1]
     assert Cooperative.seen[21].partner.tolist() == [2, 2, 1]
     assert Cooperative.seen[21].partner_received.all()
+    # 3 CAVs x 30 ticks of partner choices; CAV 0's request counts from tick 21 to 29 (9 ticks), and CAV 2
+    # is in range each time, so every named partner was the one used
+    assert result.v2v is not None
+    assert (result.v2v["cav_ticks"], result.v2v["named"], result.v2v["named_taken"]) == (90, 9, 9)
 
 
 def test_nothing_is_computed_that_was_not_declared() -> None:

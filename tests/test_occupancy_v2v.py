@@ -215,6 +215,10 @@ def test_link_merges_the_partners_map_with_latency_noise_drop_and_counts_bytes()
     x, y = occupied_xy(ex.merged[0, OccupancyClass.PEDESTRIAN])
     assert x.tolist() == [30.25] and y.tolist() == [0.25]
     assert net.stats.messages == 2 and net.stats.bytes == 2 * message_bytes(CFG) == 2 * 12316
+    assert (net.stats.cav_ticks, net.stats.named, net.stats.named_taken) == (2, 0, 0)
+    # CAV 0 names CAV 1 (in range: used), CAV 1 names CAV 7 (not on the road: the default stands)
+    net.exchange(1, np.array([0, 1]), pose, own, requested=np.array([1, 7]))
+    assert (net.stats.cav_ticks, net.stats.named, net.stats.named_taken) == (4, 2, 1)
 
     late = V2VNetwork(link=LinkConfig(latency_ticks=2))
     assert not late.exchange(0, np.array([0, 1]), pose, own).received.any()

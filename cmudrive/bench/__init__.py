@@ -15,7 +15,7 @@ from cmudrive.bench.criteria import CriteriaConfig, RouteCriteria
 from cmudrive.bench.evaluator import EvalConfig, RouteInputError, evaluate_route
 from cmudrive.bench.export import export_leaderboard
 from cmudrive.bench.leaderboard import ExportError, LeaderboardExport
-from cmudrive.bench.metrics import ABILITIES, route_result, route_scores, summarize
+from cmudrive.bench.metrics import ABILITIES, route_result, route_scores, summarize, v2v_totals
 from cmudrive.bench.progress import RunProgress
 from cmudrive.bench.records import INFRACTION_KEYS, PENALTIES, CavResult, Infraction, RouteResult
 from cmudrive.bench.route_sets import (
@@ -78,5 +78,6 @@ __all__ = [
     "run_evaluation",
     "select_subset",
     "summarize",
+    "v2v_totals",
     "write_routes",
 ]

@@ -423,6 +423,24 @@ def is_crashed(route: RouteResult) -> bool:
     return route.error is not None or route.status in (STATUS_AGENT_CRASHED, STATUS_SIM_CRASHED)
 
 
+def v2v_totals(routes: Sequence[RouteResult]) -> dict[str, float | None] | None:
+    """The V2V link counters summed over the routes that have them (``RouteResult.v2v``), with
+    ``bytes_per_message`` recomputed from the sums and ``named_share``: the share of partner choices
+    (``cav_ticks``) in which the agent named a partner itself (None without choices); None when no route
+    has counters (an agent without V2V). Counters a route's record lacks (older records) count 0."""
+    counters = [r.v2v for r in routes if r.v2v is not None]
+    if not counters:
+        return None
+    keys = sorted({k for c in counters for k in c} - {"bytes_per_message", "named_share"})
+    sums = {k: sum(c.get(k, 0) for c in counters) for k in keys}
+    messages, ticks = sums.get("messages", 0), sums.get("cav_ticks", 0)
+    return {
+        **sums,
+        "bytes_per_message": sums.get("bytes", 0) / messages if messages else 0.0,
+        "named_share": sums.get("named", 0) / ticks if ticks else None,
+    }
+
+
 def summarize(routes: Sequence[RouteResult], expected_routes: int | None = None) -> dict[str, Any]:
     """Route-set summary (Bench2Drive style with the paper's route scores).
 
@@ -433,7 +451,8 @@ def summarize(routes: Sequence[RouteResult], expected_routes: int | None = None)
     - ``efficiency`` [%] and ``comfortness`` [%]: means over the routes that have a value (a route's
       value is the mean over its CAVs);
     - ``multi_ability``: see ``multi_ability``; ``num_routes``, ``num_expected``, ``num_missing``,
-      ``num_crashed`` (``is_crashed``); ``infractions_per_km``: see ``infractions_per_km``;
+      ``num_crashed`` (``is_crashed``); ``infractions_per_km``: see ``infractions_per_km``; ``v2v``: the
+      link counters over all routes (``v2v_totals``), None for an agent without V2V;
     - breakdowns over the routes present, ``{group: {"driving_score", "success_rate", "num_routes"}}``:
       ``by_scenario_type``, ``by_ability``, ``by_weather``, ``by_num_cavs`` (keys are strings, as in
       the JSON file: "2", "16").
@@ -476,6 +495,7 @@ def summarize(routes: Sequence[RouteResult], expected_routes: int | None = None)
         "by_weather": breakdown(routes, lambda r: [r.weather], _weather_order()),
         "by_num_cavs": breakdown(routes, lambda r: [r.num_cavs], tuple(range(1, 65))),
         "infractions_per_km": infractions_per_km(routes),
+        "v2v": v2v_totals(routes),
     }
 
 

@@ -195,6 +195,10 @@ def summary_markdown(s: dict[str, Any], title: str = "cmudrive benchmark report"
     if per_km is not None:
         lines += ["## Infractions per km driven (all CAVs)", ""]
         lines += _md_table(["infraction", "per km"], [[k, v] for k, v in per_km.items()])
+    link = s.get("v2v")
+    if link is not None:
+        lines += ["## V2V link (all routes)", ""]
+        lines += _md_table(["counter", "value"], [[k, v] for k, v in link.items()])
     lines += ["![by number of CAVs](by_num_cavs.png) ![by weather](by_weather.png)", ""]
     return "\n".join(lines)
 

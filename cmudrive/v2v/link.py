@@ -76,6 +76,9 @@ class LinkStats:
     out_of_range: int = 0  # lost to range_m
     not_yet: int = 0  # latency: the partner had no message that old yet
     bytes: int = 0  # of all sent messages
+    cav_ticks: int = 0  # active CAVs summed over ticks: how many partner choices were made
+    named: int = 0  # of those, the agent named a partner itself (its request >= 0)
+    named_taken: int = 0  # of those, the partner it named was the one used (in range and active)
 
     def to_json(self) -> dict[str, int | float]:
         per = self.bytes / self.messages if self.messages else 0.0
@@ -119,6 +122,11 @@ class V2VNetwork:
             queue.append((tick, pose[j].copy(), own[j]))
         partner = select_partners(pose[:, 0], pose[:, 1], pose[:, 2], cav_index, requested, self.partners)
         n = len(cav_index)
+        self.stats.cav_ticks += n
+        if requested is not None:
+            asked = np.asarray(requested, np.int64) >= 0
+            self.stats.named += int(asked.sum())
+            self.stats.named_taken += int((asked & (partner == np.asarray(requested, np.int64))).sum())
         received = np.zeros(n, bool)
         sender_grid = np.zeros_like(own)
         sender_pose = np.zeros((n, 3))
