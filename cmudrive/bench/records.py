@@ -133,8 +133,8 @@ class RouteResult:
     # False while the route's scenario behaviour is not simulated yet (the scenario engine has not landed:
     # the route is scored under its type, but no scenario actor ran); None for a route without scenario
     scenario_simulated: bool | None = None
-    # V2V link counters (messages, received, dropped, out_of_range, not_yet, bytes, bytes_per_message) for
-    # agents that take part in V2V; None otherwise
+    # V2V link counters (messages, received, dropped, out_of_range, not_yet, bytes, bytes_per_message,
+    # cav_ticks, named, named_taken: v2v.link.LinkStats) for agents that take part in V2V; None otherwise
     v2v: dict[str, float] | None = None
     # what produced the record (the runner stamps it; bench/manifest.py): setup_sha256 (the run's setup in
     # OUT/run.json), route_sha256 (the route as run, routes.route_sha256) and code (the code version)
