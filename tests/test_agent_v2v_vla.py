@@ -5,6 +5,7 @@ badly: this checks plumbing, batching, the language rate and partner requests, n
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -19,9 +20,11 @@ import torch
 from cmudrive.agents.base import (
     AgentSetupError,
     CavPlan,
+    Observation,
     Observations,
     RouteSetup,
     agent_factory,
+    check_observations,
     load_agent_class,
 )
 from cmudrive.agents.control import CREEP_AFTER, CREEP_TICKS, WaypointController, desired_speed, point_along
@@ -405,6 +408,38 @@ def test_ablations_ignore_partner_requests_or_feed_the_own_occupancy(checkpoints
         V2VVLAAgent(checkpoint=checkpoints["coop"], bev="none")
     with pytest.raises(ValueError, match="desired_speed must be"):
         V2VVLAAgent(checkpoint=checkpoints["coop"], desired_speed="model")
+
+
+def test_the_safety_brake_stops_a_cav_whose_path_runs_into_the_grid_it_sees(
+    checkpoints: dict[str, Path],
+) -> None:
+    """CAV 1 drives straight on at 3 m/s (stopping distance 3.15 m) toward a car 3 m ahead of its bumper
+    in its merged grid: with the safety brake it brakes fully and gives no throttle, without it the
+    waypoints (5 m/s) speed it up. CAV 0, with nothing on its path, drives on either way. The baseline,
+    whose model sees no grid, asks for the CAV's own occupancy when it brakes, and brakes on it."""
+    plans = tuple(plan([(0, 0), (100, 0)]) for _ in range(2))
+    merged = np.zeros((2, 4, 192, 128), bool)
+    merged[1, 0, 108:117, 60:68] = True  # cell centres x 5.75-9.75 m, y -1.75-1.75 m: a car 5.5-10 m ahead
+    obs = Observations(
+        tick=0, time=0.0, cav_index=np.array([0, 1]), x=np.array([0.0, 10.0]), y=np.zeros(2),
+        yaw=np.zeros(2), speed=np.array([3.0, 3.0]), accel=np.zeros(2),
+        other_cavs=np.array([[[np.nan] * 3, [10.0, 0.0, 0.0]], [[-10.0, 0.0, 0.0], [np.nan] * 3]]),
+        camera=np.zeros((2, 128, 256, 3), np.uint8), occupancy=merged, merged_occupancy=merged,
+    )  # fmt: skip
+    for safety_brake, brake in ((False, [0.0, 0.0]), (True, [0.0, 1.0])):
+        agent = V2VVLAAgent(checkpoint=checkpoints["coop"], safety_brake=safety_brake)
+        agent.model = FakeModel()
+        agent.setup(RouteSetup("r", "mini", "ClearNoon", 0.05, plans))
+        controls = agent.run_step(obs)
+        assert controls.brake.tolist() == brake
+        assert controls.throttle[0] > 0 and (controls.throttle[1] == 0) == safety_brake
+    baseline = V2VVLABaselineAgent(checkpoint=checkpoints["baseline"])
+    assert check_observations(baseline) == {Observation.EGO_STATE, Observation.CAMERA}
+    baseline = V2VVLABaselineAgent(checkpoint=checkpoints["baseline"], safety_brake=True)
+    assert check_observations(baseline) == {Observation.EGO_STATE, Observation.CAMERA, Observation.OCCUPANCY}
+    baseline.model = FakeModel()
+    baseline.setup(RouteSetup("r", "mini", "ClearNoon", 0.05, plans))
+    assert baseline.run_step(replace(obs, merged_occupancy=None)).brake.tolist() == [0.0, 1.0]
 
 
 @pytest.mark.parametrize(

@@ -119,6 +119,13 @@ class Agent(ABC):
     def run_step(self, obs: Observations) -> Controls:
         """Controls for every active CAV, arrays of shape (n,) in ``obs.cav_index`` order."""
 
+    def needed_observations(self) -> frozenset[Observation]:
+        """The observations this agent, made with its options, needs: its class's :attr:`observations` by
+        default. An agent whose options add an input widens it here (the V2V-VLA baseline's safety brake
+        reads the CAV's own occupancy); the evaluator asks every agent it sets up, so the extra input is
+        computed only for the runs that read it."""
+        return self.observations
+
     def next_partners(self) -> np.ndarray | None:
         """Partners the agent names for the next tick, after ``run_step``: (n,) CAV indices in the last
         ``obs.cav_index`` order, -1 for the default (the closest CAV in front); None: defaults for all.
@@ -149,10 +156,13 @@ class Agent(ABC):
 
 
 def declared_observations(agent: Agent | type[Agent]) -> frozenset[Observation]:
-    """The agent class's :attr:`Agent.observations` as Observations, or AgentSetupError naming the agent
-    and what is wrong with the declaration (not a set of observation names, an unknown name)."""
+    """The agent class's :attr:`Agent.observations` (an agent's :meth:`Agent.needed_observations`) as
+    Observations, or AgentSetupError naming the agent and what is wrong with the declaration (not a set of
+    observation names, an unknown name)."""
     cls = agent if isinstance(agent, type) else type(agent)
     raw = getattr(cls, "observations", None)
+    if isinstance(agent, Agent):
+        raw = agent.needed_observations()
     if isinstance(raw, str | bytes) or not isinstance(raw, set | frozenset | list | tuple):
         raise AgentSetupError(
             f"agent {cls.__name__}: observations must be a set of Observation values, got {raw!r}"

@@ -20,7 +20,11 @@ Per tick, for the ``n`` active CAVs:
    m/s) and, for a model that reads its speed, where its stop probability exceeds 0.5 (the stop label is
    a function of the speed: a model that never sees it cannot know it); the path still steers;
 4. the CAV named in each communication sentence becomes that CAV's partner from the next tick
-   (:meth:`next_partners`; -1, the default closest CAV in front, when it names none).
+   (:meth:`next_partners`; -1, the default closest CAV in front, when it names none);
+5. with ``safety_brake=True`` (off by default: the paper's agent has no such layer), a CAV whose own
+   predicted path runs into an occupied cell of the occupancy its model sees (the baseline: the CAV's
+   own occupancy), within its stopping distance, brakes fully
+   (:class:`~cmudrive.agents.shield.SafetyBrake`; it overrides the creep).
 
 The checkpoint: ``V2VVLAAgent(checkpoint=PATH)`` (``cmudrive eval --agent v2v-vla --checkpoint PATH``
 passes it through ``EvalConfig.agent_options``), else the committed one under
@@ -39,6 +43,7 @@ import numpy as np
 
 from cmudrive.agents.base import Agent, Observation, Observations, RouteSetup
 from cmudrive.agents.control import WaypointController
+from cmudrive.agents.shield import SafetyBrake
 from cmudrive.model.row import RowBuilder
 from cmudrive.sim.dynamics import Controls
 
@@ -101,6 +106,7 @@ class V2VVLAAgent(Agent):
         other_cavs: bool = True,
         camera_jpeg: bool = True,
         desired_speed: str = "query",
+        safety_brake: bool = False,
     ) -> None:
         """``checkpoint``: a ``V2VVLA.save_pretrained`` directory (default: the committed one);
         ``max_new_tokens``: cap on generated answer tokens (default: the model's ``max_answer_tokens``).
@@ -114,7 +120,10 @@ class V2VVLAAgent(Agent):
         ``desired_speed``, for a model with a speed query: ``"query"`` drives toward its predicted speed
         (go/stop as in the module docstring), ``"waypoints"`` toward the speed SimLingo's controller
         reads from its speed waypoints, braking where the stop probability exceeds 0.5 (docs/model.md,
-        "Go/stop")."""
+        "Go/stop").
+        ``safety_brake=True`` adds the occupancy safety brake (step 5 of the module docstring) on the
+        grid the model sees (the own grid for ``bev="own"`` and ``bev="empty"``; the baseline, whose
+        model sees no grid, asks for the CAV's own occupancy for the brake alone)."""
         if language_every < 1:
             raise ValueError(f"language_every must be >= 1 tick, got {language_every}")
         if bev not in ("merged", "own", "empty"):
@@ -122,6 +131,7 @@ class V2VVLAAgent(Agent):
         if desired_speed not in ("query", "waypoints"):
             raise ValueError(f"desired_speed must be 'query' or 'waypoints', got {desired_speed!r}")
         self.desired_speed = desired_speed
+        self.safety_brake = SafetyBrake() if safety_brake else None
         self.partner_requests = partner_requests
         self.bev = bev
         self.other_cavs = other_cavs
@@ -165,6 +175,12 @@ class V2VVLAAgent(Agent):
         self.requested = np.full(k, -1, np.int64)  # partner named by each CAV's last sentence
         self.cav_index = np.zeros(0, np.int64)
 
+    def needed_observations(self) -> frozenset[Observation]:
+        """The class's observations; the baseline's safety brake adds the CAV's own occupancy."""
+        if self.safety_brake is not None and not self.cooperative:
+            return self.observations | {Observation.OCCUPANCY}
+        return self.observations
+
     def rows(self, obs: Observations) -> list[dict[str, Any]]:
         """The model's input rows of the active CAVs, as the dataset has them (the row contract,
         :class:`~cmudrive.model.row.RowBuilder`). Advances the CAVs' progress along their plans: once a
@@ -202,9 +218,19 @@ class V2VVLAAgent(Agent):
                 target_speed = pred.target_speed.float().cpu().numpy().astype(np.float64)
                 if not self.model.config.speed_in_prompt:  # the brake rule on its speed alone
                     stop = np.zeros(len(idx), bool)
-        steer, throttle, brake = self.controller(
-            idx, np.asarray(obs.speed, np.float64), path, speed_wp, target_speed, stop
-        )
+        speed = np.asarray(obs.speed, np.float64)
+        steer, throttle, brake = self.controller(idx, speed, path, speed_wp, target_speed, stop)
+        if self.safety_brake is not None:
+            grid = obs.merged_occupancy if self.cooperative and self.bev == "merged" else obs.occupancy
+            assert grid is not None
+            if grid.shape[-2:] != self.safety_brake.config.shape:
+                raise ValueError(
+                    f"safety_brake: occupancy grids of {grid.shape[-2:]} cells, the brake reads "
+                    f"{self.safety_brake.config.shape} (the default OccupancyConfig)"
+                )
+            blocked = self.safety_brake(grid, path, speed)
+            throttle = np.where(blocked, 0.0, throttle)
+            brake = np.where(blocked, 1.0, brake)
         return Controls(steer=steer, throttle=throttle, brake=brake)
 
     def next_partners(self) -> np.ndarray | None:
