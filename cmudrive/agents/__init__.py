@@ -1,5 +1,6 @@
 """Agents that drive CAVs: the batched agent interface and the rule-based agents, the PID smoke-test agent,
-the demo autopilot and the privileged expert (``cmudrive.agents.expert``). The learned V2V-VLA agent lives
+the demo autopilot and the privileged expert (``cmudrive.agents.expert``), and the occupancy safety brake
+a learned agent may add (:class:`SafetyBrake`). The learned V2V-VLA agent lives
 beside its model (``cmudrive.model.agent``); ``--agent`` names all four (``load_agent_class``).
 
 Write your own agent by subclassing :class:`Agent` (see README, "Evaluate your own agent")."""
@@ -17,6 +18,7 @@ from cmudrive.agents.base import (
     sparse_plan,
 )
 from cmudrive.agents.pid import PidAgent
+from cmudrive.agents.shield import SafetyBrake
 
 __all__ = [
     "Agent",
@@ -28,6 +30,7 @@ __all__ = [
     "Observations",
     "PidAgent",
     "RouteSetup",
+    "SafetyBrake",
     "check_observations",
     "load_agent_class",
     "sparse_plan",
