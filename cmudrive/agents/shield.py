@@ -24,7 +24,7 @@ Written here rather than taken from a library: a short compiled loop over our ow
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numba
 import numpy as np
@@ -55,7 +55,7 @@ class SafetyBrake:
     # [m] corridor half width for the static class (props, scenery): half the car and no margin, since
     # nothing static steps into the path, and poles and walls line the kerb a metre from a CAV's side
     static_half_width: float | None = 1.1
-    config: OccupancyConfig = OccupancyConfig()
+    config: OccupancyConfig = field(default_factory=OccupancyConfig)
 
     def __post_init__(self) -> None:
         for name in ("gap", "decel", "half_width"):
