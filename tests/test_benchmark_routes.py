@@ -121,9 +121,11 @@ def test_training_is_disjoint_from_the_benchmark(sets: dict[str, list[RouteSpec]
 
 @pytest.mark.parametrize("name", ["cmudrive220", "cmudrive44", "training"])
 def test_every_route_checks_and_places(name: str) -> None:
-    """``cmudrive routes check`` passes: towns, planning, triggers and scenario placement."""
+    """``cmudrive routes check`` passes: towns, planning, triggers and scenario placement, and no route
+    breaks a placement rule (``route_rules``: the generator rejects a layout that does)."""
     checks = check_route_file(ROUTES / f"{name}.xml")
     assert [c.problem for c in checks if c.problem] == []
+    assert [(c.route_id, r.rule) for c in checks for r in c.rules] == []
 
 
 def test_check_reports_a_scenario_that_does_not_place(sets: dict[str, list[RouteSpec]]) -> None:

@@ -19,6 +19,17 @@ cav-clear-of-actors    a CAV's box at its start comes within ``CLEARANCE`` of th
 junction-free-invading InvadingTurn: CAV 0's route crosses a junction between T and the flow's source
                        S (upstream's layout is one road: the invading cars would run through the
                        junction to CAV 0's stop line)
+highway-merge          HighwayCutIn: the car does not come from an on-ramp into CAV 0's lane: its lane
+                       reaches CAV 0's road through a signalised junction, CAV 0 enters the merge on a
+                       minor link or on a road no wider than the car's (CAV 0 is the one on the
+                       ramp), the lane on the left of the car's lane where it starts its lane change
+                       is not on CAV 0's route, or CAV 0's route ends less than ``MERGE_ROOM`` past
+                       that point (upstream removes the ramp's entry and extends the road's exit by
+                       170 m: the cut-in happens in front of the ego, on a highway)
+parking-slot           ParkingExit: the slot is not on a parking lane at least ``PARKING_WIDTH`` wide
+                       (a 0.3-0.5 m shoulder of CARLA's towns leaves CAV 0 and both parked cars
+                       sticking a metre into the driving lane; upstream's routes use Town03's 3.5 m
+                       parking lanes)
 =====================  ==============================================================================
 
 Bench2Drive's own Town01-07 routes (``bench2drive220.xml`` imported with ``--cavs 4``) break none of them
@@ -34,12 +45,16 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from cmudrive.bench.scenarios.plan import PlanPoint
-from cmudrive.maps import Route
+from cmudrive.maps import RoadMap, Route
+from cmudrive.maps.model import LaneKind
 
 if TYPE_CHECKING:
     from cmudrive.bench.scenarios.base import Scenario
+    from cmudrive.bench.scenarios.cutins import HighwayCutIn
 
 CLEARANCE = 0.5  # [m] between a CAV's box at its start and a placed actor's box
+MERGE_ROOM = 80.0  # [m] of CAV 0's route past the cut-in car's lane-change start (highway-merge)
+PARKING_WIDTH = 2.0  # [m] the narrowest parking lane a ParkingExit slot may use (parking-slot)
 MARKERS = frozenset({"light", "patch", "slot"})  # plan points that are not actors
 
 
@@ -52,7 +67,9 @@ class RuleViolation:
 def rule_violations(routes: list[Route], placed: Sequence[Scenario]) -> list[RuleViolation]:
     """The rules a route breaks, given its CAVs' dense routes and its scenarios as placed
     (``route_check.build_placed``)."""
+    from cmudrive.bench.scenarios.cutins import HighwayCutIn
     from cmudrive.bench.scenarios.invading import InvadingTurn
+    from cmudrive.bench.scenarios.parking import ParkingExit
 
     out: list[RuleViolation] = []
     ego = routes[0]
@@ -68,7 +85,58 @@ def rule_violations(routes: list[Route], placed: Sequence[Scenario]) -> list[Rul
             if bool(np.any(ego.in_junction[k0 : ks + 1])):
                 message = "CAV 0's route crosses a junction between the trigger point and the flow's source"
                 out.append(RuleViolation("junction-free-invading", f"scenario {name!r}: {message}"))
+        if isinstance(sc, ParkingExit):
+            kind, width = LaneKind(int(sc.map.lane_kind[sc.side])), float(sc.map.lane_width[sc.side])
+            if kind != LaneKind.PARKING or width < PARKING_WIDTH:
+                message = (
+                    f"the slot is on a {width:.1f} m {kind.name.lower()} lane (a parking lane at least "
+                    f"{PARKING_WIDTH:g} m wide is needed)"
+                )
+                out.append(RuleViolation("parking-slot", f"scenario {name!r}: {message}"))
+        if isinstance(sc, HighwayCutIn):
+            problem = _not_a_merge(sc, ego)
+            if problem is not None:
+                out.append(RuleViolation("highway-merge", f"scenario {name!r}: {problem}"))
     return out
+
+
+def _not_a_merge(sc: HighwayCutIn, ego: Route) -> str | None:
+    """Why HighwayCutIn's car does not merge from a ramp into CAV 0's lane in front of it, or None."""
+    from cmudrive.bench.scenarios.placement import neighbour, point_xy
+
+    m = sc.map
+    lane, seen = sc.start.lane, 0
+    while seen < 100:  # the car's lane that enters its first junction
+        succ = m.successors(lane)
+        if len(succ) == 0 or m.lane_internal[int(succ[0])]:
+            break
+        lane, seen = int(succ[0]), seen + 1
+    car_links = np.flatnonzero(m.link_from == lane)
+    if bool(np.any(m.link_tls[car_links] >= 0)):
+        return "the car reaches CAV 0's road through a signalised junction, not an on-ramp"
+    k0 = sc.trigger_index
+    inside = np.flatnonzero(ego.in_junction[k0:]) + k0
+    if len(inside):
+        before, via = int(ego.lane[inside[0] - 1]), int(ego.lane[inside[0]])
+        ego_links = np.flatnonzero((m.link_from == before) & (m.link_via == via))
+        if len(ego_links) and not all(str(m.link_state[x]) == "M" for x in ego_links):
+            return "CAV 0 enters the merge on a minor link: it is the one on the ramp, not the car"
+        if _driving_lanes(m, lane) >= _driving_lanes(m, before):
+            return "the car's road is as wide as CAV 0's: it is no on-ramp"
+    target = neighbour(m, sc.merge_at.lane, "left")
+    if target < 0 or target not in {int(x) for x in ego.path}:
+        return "the car's lane change does not lead into CAV 0's lane (its left lane is not on CAV 0's route)"
+    at = point_xy(m, sc.merge_at)
+    k = int(np.argmin(np.linalg.norm(ego.xy - at, axis=1)))
+    room = float(ego.distance[-1] - ego.distance[k])
+    if room < MERGE_ROOM:
+        return f"CAV 0's route ends {room:.0f} m past the car's lane-change start (at least {MERGE_ROOM:g} m)"
+    return None
+
+
+def _driving_lanes(m: RoadMap, lane: int) -> int:
+    """Driving lanes of ``lane``'s edge."""
+    return int(np.sum((m.lane_edge == m.lane_edge[lane]) & m.driving))
 
 
 def _short_of_end(sc: Scenario, ego: Route) -> str | None:
@@ -145,4 +213,4 @@ def _starts_against_actors(sc: Scenario, routes: list[Route]) -> list[RuleViolat
     return out
 
 
-__all__ = ["CLEARANCE", "RuleViolation", "rule_violations"]
+__all__ = ["CLEARANCE", "MERGE_ROOM", "PARKING_WIDTH", "RuleViolation", "rule_violations"]

@@ -14,16 +14,19 @@ under the five weather presets. A route is made in four steps, each drawn from
    (:mod:`cmudrive.bench.authoring.flow_places`).
 3. **Placement check**: the scenario class is built on the map exactly as the evaluator builds it
    (``REGISTRY[type](spec, ctx)`` computes every actor's place at construction); a ``ScenarioError``
+   or a broken placement rule of :mod:`cmudrive.bench.route_rules` (CAV 0's route reaches the scenario's
+   end, no junction inside InvadingTurn, HighwayCutIn's car merges from a ramp into CAV 0's lane)
    rejects the candidate and the next attempt is drawn.
 4. **Other CAVs** by :func:`route_gen.add_cavs` (own lanes near CAV 0's start, off the lanes of CAV 0's
-   first 60 m and of the 60 m after the trigger, starts >= 15 m apart), with the route's drawn count.
+   first 60 m and of the 60 m after the trigger, starts >= 15 m apart), with the route's drawn count; a
+   draw where a CAV starts against a scenario actor (``cav-clear-of-actors``) is rejected as well.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -38,10 +41,12 @@ from cmudrive.bench.authoring.route_geometry import (
     route_keypoints,
 )
 from cmudrive.bench.authoring.route_rules import RULES, TypeRule
-from cmudrive.bench.route_check import build_placed, place_scenarios
+from cmudrive.bench.route_check import build_placed
+from cmudrive.bench.route_rules import rule_violations
 from cmudrive.bench.routes import CavSpec, RouteSpec, ScenarioSpec
 from cmudrive.bench.scenario_types import SCENARIO_TYPES
 from cmudrive.bench.scenarios.flows import VehicleFlow
+from cmudrive.bench.scenarios.params import ScenarioError
 from cmudrive.bench.scenarios.placement import LanePoint, walk
 from cmudrive.maps import LanePos, RoadMap, RoadOption, Route, RouteError, densify, load_map
 from cmudrive.maps.coords import map_to_carla
@@ -134,7 +139,7 @@ def _junction_route(town: _Town, rule: TypeRule, rng: np.random.Generator) -> Ro
     before = float(rng.uniform(*BEFORE_JUNCTION))
     before = max(before, rule.trigger_at[1] + 10.0)
     start = walk_back(m, a, before)
-    goal = walk_fwd(m, b, float(rng.uniform(*AFTER_JUNCTION)))
+    goal = walk_fwd(m, b, float(rng.uniform(*(rule.after_junction or AFTER_JUNCTION))))
     try:
         route = town.topo.planner.plan_lanes(LanePos(start[0], start[1]), LanePos(goal[0], goal[1]))
     except RouteError:
@@ -274,7 +279,11 @@ def _candidate(
     trigger = (round(float(xy[0]), 2) + 0.0, round(float(xy[1]), 2) + 0.0, 0.0, yaw)
     sc = ScenarioSpec(f"{type_name}_1", type_name, trigger, params)
     spec = RouteSpec(route_id, town.name, weather, seed, (CavSpec(0, carla_points(keypoints)),), (sc,))
-    if place_scenarios(spec, m, [dense]) is not None:
+    try:
+        placed = build_placed(spec, m, [dense])
+    except ScenarioError:
+        return None
+    if rule_violations([dense], placed):  # CAV 0's layout breaks what the type needs
         return None
     return _Candidate(spec, (town.name, junction, float(dense.xy[k0, 0]), float(dense.xy[k0, 1])))
 
@@ -357,6 +366,11 @@ def _taken(place: tuple[str, int, float, float], used: Sequence[tuple[str, int, 
     return False
 
 
+def _route_key(spec: RouteSpec) -> bytes:
+    """CAV 0's waypoints as bytes: two routes with the same key drive CAV 0 the same way."""
+    return spec.cavs[0].waypoints.tobytes()
+
+
 def generate_route(
     type_name: str,
     k: int,
@@ -366,10 +380,12 @@ def generate_route(
     route_id: str,
     sumo_seed: int,
     used: Sequence[tuple[str, int, float, float]] = (),
+    taken_routes: Collection[bytes] = (),
 ) -> tuple[RouteSpec, tuple[str, int, float, float]]:
     """Route ``k`` of a type: a placed scenario on a town of the type's list (route ``k`` tries
     ``towns[k % len]`` first, towns this type has used least before others) at a place not in ``used``,
-    with ``num_cavs`` CAVs. RouteError when no town of the list has one."""
+    whose CAV 0 waypoints (``_route_key``) are not in ``taken_routes``, with ``num_cavs`` CAVs.
+    RouteError when no town of the list has one."""
     ti = SCENARIO_TYPES.index(type_name)
     towns = RULES[type_name].towns
     order = [towns[(k + i) % len(towns)] for i in range(len(towns))]
@@ -381,7 +397,7 @@ def generate_route(
         for attempt in range(ATTEMPTS_PER_TOWN):
             rng = np.random.default_rng([seed, ti, k, ti_town, attempt])
             cand = _candidate(type_name, town, rng, route_id, weather, sumo_seed)
-            if cand is None or _taken(cand.place, used):
+            if cand is None or _taken(cand.place, used) or _route_key(cand.spec) in taken_routes:
                 continue
             spec, m = cand.spec, town.map
             avoid = actor_lanes(build_placed(spec, m, spec.dense_routes(m)))
@@ -391,6 +407,9 @@ def generate_route(
             try:
                 spec = add_cavs(spec, num_cavs, rng, m, avoid_lanes=avoid)
             except RouteError:
+                continue
+            routes = spec.dense_routes(m)
+            if rule_violations(routes, build_placed(spec, m, routes)):  # a CAV starts against an actor
                 continue
             return spec, cand.place
     raise RouteError(f"{type_name}: no route {k} with {num_cavs} CAVs on {', '.join(towns)}")
@@ -460,11 +479,12 @@ def generate_set(
 
     The CAV counts are drawn over the whole set (all 44 types) so that a subset of types gets the counts
     it has in the full set. ``avoid`` (default: the set named by ``avoid``, generated) gives places the
-    set must not reuse."""
+    set must not reuse (per type: trigger places; any type: CAV 0 routes)."""
     rs = ROUTE_SETS[name]
     if rs.avoid and avoid is None:
         avoid = generate_set(rs.avoid, types)
     far = _places(avoid or [])
+    taken = {_route_key(spec) for spec in avoid or []}  # another type's CAV 0 route there is taken too
     counts = cav_counts(len(SCENARIO_TYPES) * rs.per_type, rs.seed)
     out = []
     for type_name in types:
@@ -483,6 +503,7 @@ def generate_set(
                 f"{rs.id_prefix}{type_name}_{k}",
                 index,
                 used,
+                taken,
             )
             used.append(place)
             if keep >= 0 and k != keep:

@@ -6,8 +6,9 @@ junction has no place for them. The scenario class then checks them as the evalu
 
 * EnterActorFlow, MergerIntoSlowTraffic(V2): another entry of the junction with a connection onto CAV
   0's exit road; source 30-40 m up it, sink 35-60 m down CAV 0's exit lane.
-* HighwayCutIn: the same entry (the ramp); the car 25-40 m up it, ``end_location`` 80 m down CAV 0's
-  exit lane.
+* HighwayCutIn: an entry of another road (the ramp) whose link leads onto the lane right of CAV 0's exit
+  lane, so that the car's lane change to the left ends in CAV 0's lane; the car 25-40 m up it,
+  ``end_location`` 80 m down CAV 0's exit lane.
 * HighwayExit: the lane left of CAV 0's at T; source 26-29 m behind T, sink 100 m ahead on a lane
   CAV 0 does not take.
 * InterurbanActorFlow: as HighwayExit, else the opposite approach's straight lane (source 40 m up,
@@ -99,11 +100,21 @@ def enter_flow(m: RoadMap, route: Route, k0: int, rng: np.random.Generator) -> P
 
 
 def highway_cut_in(m: RoadMap, route: Route, k0: int, rng: np.random.Generator) -> Params | None:
-    pair = _joining(m, route, k0, rng)
-    if pair is None:
+    j = first_junction(m, route, k0)
+    if j is None:
         return None
-    car = _up(m, pair[0], float(rng.uniform(25.0, 40.0)))
-    return {"other_actor_location": _xyz(m, car), "end_location": _xyz(m, _down(m, pair[1], 80.0))}
+    junction, before, after = j
+    entry, exit_ = int(route.lane[before]), int(route.lane[after])
+    beside = int(m.lane_right[exit_])
+    if beside < 0 or m.lane_kind[beside] != LaneKind.DRIVING:
+        return None
+    links = junction_links(m, junction)
+    ramps = links[(links[:, 1] == beside) & (m.lane_edge[links[:, 0]] != m.lane_edge[entry])]
+    if len(ramps) == 0:
+        return None
+    ramp = int(ramps[int(rng.integers(len(ramps))), 0])
+    car = _up(m, ramp, float(rng.uniform(25.0, 40.0)))
+    return {"other_actor_location": _xyz(m, car), "end_location": _xyz(m, _down(m, exit_, 80.0))}
 
 
 def _left_lane_flow(m: RoadMap, route: Route, k0: int, rng: np.random.Generator) -> Params | None:

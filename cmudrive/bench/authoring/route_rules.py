@@ -23,6 +23,7 @@ class TypeRule:
     trigger_at: tuple[float, float] = TRIGGER_AFTER_START  # [m] trigger along the route from its start
     three_way: bool = False  # the junction has exactly three approaches (T_Junction)
     lane_shift: bool = False  # the route moves two lanes to the left (SequentialLaneChange)
+    after_junction: tuple[float, float] | None = None  # [m] past the junction exit (None: the default)
 
 
 MULTI = ("interurban", "Town04", "Town03", "highway", "Town05", "Town06", "corridor")
@@ -33,6 +34,7 @@ SIGNAL_J = ("downtown", "Town03", "Town05", "Town01", "corridor", "Town02", "Tow
 NOSIGNAL_J = ("suburb", "downtown", "corridor", "Town03", "Town04", "Town06", "Town07", "interurban")
 STOP_J = ("downtown", "suburb", "corridor", "interurban")
 RAMP = ("highway", "Town04", "Town06", "interurban")
+PARKING = ("downtown", "Town03", "suburb", "corridor", "Town05")  # parking lanes >= 2 m wide (parking-slot)
 
 
 def _flow(
@@ -91,7 +93,8 @@ RULES: dict[str, TypeRule] = {
             ("bicycle_drive_distance", (80, 116)),
         ),
     ),
-    "HighwayCutIn": TypeRule(RAMP, junction="straight"),
+    # the cut-in takes ~5 s at the CAV's speed past the ramp: upstream extends the road's exit by 170 m
+    "HighwayCutIn": TypeRule(RAMP, junction="straight", control="nosignal", after_junction=(100.0, 150.0)),
     "HighwayExit": TypeRule(RAMP, junction="right", params=_flow((10, 15), (11, 20), (33, 46))),
     "InterurbanActorFlow": TypeRule(
         ("interurban", "Town04", "suburb", "Town05", "Town07", "Town03"),
@@ -133,7 +136,7 @@ RULES: dict[str, TypeRule] = {
     ),
     "ParkingCutIn": TypeRule(SIDE, params=(("direction", "right"),)),
     "ParkingExit": TypeRule(
-        SIDE,
+        PARKING,
         params=(
             ("direction", "right"),
             ("front_vehicle_distance", (9, 9)),

@@ -224,6 +224,7 @@ class HighwayCutIn(Scenario):
         self.sync = to_exit + self.SYNC_PAST_EXIT
         self.approach = PathMotion(lane_path(m, self.start, self.sync), 0.0)
         merge_at = walk(m, self.start, self.sync, through_junctions=True)
+        self.merge_at = merge_at  # the car's lane point where its lane change starts (route rules read it)
         if neighbour(m, merge_at.lane, "left") == NO_INDEX:
             raise self.error(
                 f"no place for the cut-in: lane {m.lane_ids[merge_at.lane]} {self.SYNC_PAST_EXIT:g} m past "
