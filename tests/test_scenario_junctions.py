@@ -362,3 +362,29 @@ def test_a_cav_held_at_the_scenarios_forced_red_is_not_blocked(tmp_path: Path) -
     assert s1[0] > 20.0 and cav_track(log, 1)[-1, 3] < 0.1  # CAV 1 stands at its stop line ...
     assert result.cavs[1].infractions["vehicle_blocked"] == []  # ... and is not blocked
     assert result.cavs[1].infractions["red_light"] == []
+
+
+def test_a_node_that_only_joins_two_roads_is_not_the_scenarios_junction() -> None:
+    """Town05: a right turn 22 m past ``25.16``, the node netconvert puts where two OpenDRIVE roads meet
+    end to end (CARLA has no junction there). The junction types look past it to the real junction 829,
+    as upstream's "next junction" does: Bench2Drive's own SignalizedJunctionRightTurn route on this
+    approach was refused with "CAV 0's route does not turn right at its junction"."""
+    from cmudrive.bench.route_check import build_placed
+    from cmudrive.bench.routes import CavSpec
+    from cmudrive.maps.coords import map_to_carla
+
+    m = load_map("Town05")
+    assert m.junction_is_join[m.junction("25.16")] and not m.junction_is_join[m.junction("829")]
+    start = m.lane("-16_3")
+    s0 = float(m.lane_length[start]) - 12.0
+    pts = m.index.frenet_to_xy(np.array([start, m.lane("-25_3"), m.lane("-0_3")]), np.array([s0, 10.0, 20.0]))
+    cav = CavSpec(0, np.column_stack([map_to_carla(pts), np.zeros(3)]))
+    sc_spec = scenario("SignalizedJunctionRightTurn", trigger(m, "-16_3", s0 + 3.0), flow_speed="12")
+    sc_spec = replace(sc_spec, params={**sc_spec.params, "source_dist_interval": {"from": "22", "to": "38"}})
+    spec = RouteSpec("join", "Town05", "ClearNoon", 0, (cav,), (sc_spec,))
+    routes = spec.dense_routes(m)
+    (sc,) = build_placed(spec, m, routes)
+    before, _, turn = sc.junction_exit()
+    first = int(np.flatnonzero(routes[0].in_junction[before:])[0]) + before
+    assert str(m.junction_ids[m.lane_junction[routes[0].lane[first]]]) == "829"
+    assert np.degrees(turn) < -60.0  # the right turn, not the 0 degree pass through the join

@@ -82,7 +82,9 @@ def rule_violations(routes: list[Route], placed: Sequence[Scenario]) -> list[Rul
         if isinstance(sc, InvadingTurn):
             k0 = sc.trigger_index
             ks = k0 + int(np.argmin(np.linalg.norm(ego.xy[k0:] - sc.s_xy, axis=1)))
-            if bool(np.any(ego.in_junction[k0 : ks + 1])):
+            lanes = ego.lane[k0 : ks + 1]
+            inside = ego.in_junction[k0 : ks + 1] & ~sc.map.junction_is_join[sc.map.lane_junction[lanes]]
+            if bool(np.any(inside)):
                 message = "CAV 0's route crosses a junction between the trigger point and the flow's source"
                 out.append(RuleViolation("junction-free-invading", f"scenario {name!r}: {message}"))
         if isinstance(sc, ParkingExit):
@@ -114,10 +116,11 @@ def _not_a_merge(sc: HighwayCutIn, ego: Route) -> str | None:
     car_links = np.flatnonzero(m.link_from == lane)
     if bool(np.any(m.link_tls[car_links] >= 0)):
         return "the car reaches CAV 0's road through a signalised junction, not an on-ramp"
-    k0 = sc.trigger_index
-    inside = np.flatnonzero(ego.in_junction[k0:]) + k0
-    if len(inside):
-        before, via = int(ego.lane[inside[0] - 1]), int(ego.lane[inside[0]])
+    from cmudrive.bench.scenarios.base import first_real_junction
+
+    first = first_real_junction(m, ego, sc.trigger_index)
+    if first > 0:
+        before, via = int(ego.lane[first - 1]), int(ego.lane[first])
         ego_links = np.flatnonzero((m.link_from == before) & (m.link_via == via))
         if len(ego_links) and not all(str(m.link_state[x]) == "M" for x in ego_links):
             return "CAV 0 enters the merge on a minor link: it is the one on the ramp, not the car"

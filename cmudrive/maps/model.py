@@ -272,6 +272,28 @@ class RoadMap:
         return self.lane_kind == LaneKind.DRIVING
 
     @cached_property
+    def junction_is_join(self) -> np.ndarray:
+        """(J,) bool: the junction only joins roads end to end, each driving edge into it going straight on
+        onto exactly one edge out of it that no other edge enters (SUMO puts such a node where two
+        OpenDRIVE roads meet, named ``A.B``, where a road gains or loses a lane, a turn pocket, and at a
+        mid-block crosswalk; a corner where the road turns is not one). CARLA's map has no junction
+        there, so the scenarios, which look for "the next junction" as upstream does, pass over them."""
+        f, t = self.link_from, self.link_to
+        ok = ~self.lane_internal[f] & ~self.lane_internal[t] & self.driving[f] & self.driving[t]
+        ok &= self.link_junction >= 0
+        out = np.ones(len(self.junction_kind), bool)
+        pairs: dict[int, set[tuple[int, int]]] = {}
+        for link in np.flatnonzero(ok).tolist():
+            j = int(self.link_junction[link])
+            pairs.setdefault(j, set()).add((int(self.lane_edge[f[link]]), int(self.lane_edge[t[link]])))
+            if int(self.link_dir[link]) not in (TurnDir.STRAIGHT, TurnDir.PARTLY_LEFT, TurnDir.PARTLY_RIGHT):
+                out[j] = False  # a U-turn, or a corner where the road turns: a junction to CARLA as well
+        for j, pj in pairs.items():
+            froms, tos = {a for a, _ in pj}, {b for _, b in pj}
+            out[j] &= len(pj) == len(froms) == len(tos)
+        return out
+
+    @cached_property
     def index(self) -> LaneIndex:
         """Spatial index for nearest-lane and Frenet queries (built on first use, ~tens of ms)."""
         from cmudrive.maps.index import LaneIndex

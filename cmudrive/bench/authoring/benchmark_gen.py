@@ -45,6 +45,7 @@ from cmudrive.bench.route_check import build_placed
 from cmudrive.bench.route_rules import rule_violations
 from cmudrive.bench.routes import CavSpec, RouteSpec, ScenarioSpec
 from cmudrive.bench.scenario_types import SCENARIO_TYPES
+from cmudrive.bench.scenarios.base import first_real_junction
 from cmudrive.bench.scenarios.flows import VehicleFlow
 from cmudrive.bench.scenarios.params import ScenarioError
 from cmudrive.bench.scenarios.placement import LanePoint, walk
@@ -261,13 +262,13 @@ def _candidate(
         return None
     junction = -1
     if rule.junction:
-        inside = np.flatnonzero(dense.in_junction[k0:]) + k0
-        if len(inside) == 0 or dense.distance[inside[0]] - dense.distance[k0] < 5.0:
+        first = first_real_junction(m, dense, k0)
+        if first < 0 or dense.distance[first] - dense.distance[k0] < 5.0:
             return None
-        junction = int(m.lane_junction[dense.lane[inside[0]]])
+        junction = int(m.lane_junction[dense.lane[first]])
     params = _draw_params(rule, rng)
     if type_name.startswith("OppositeVehicle"):
-        params["direction"] = _adversary_side(dense, k0, rng)
+        params["direction"] = _adversary_side(m, dense, k0, rng)
     placer = FLOW_PLACERS.get(type_name)
     if placer is not None:
         where = placer(m, dense, k0, rng)
@@ -341,14 +342,14 @@ def _junction_cavs(
     return dataclasses.replace(spec, cavs=tuple(cavs))
 
 
-def _adversary_side(route: Route, k0: int, rng: np.random.Generator) -> str:
+def _adversary_side(m: RoadMap, route: Route, k0: int, rng: np.random.Generator) -> str:
     """The approach of the OppositeVehicle* adversary, so that its straight path crosses CAV 0's: for a left
     turn the opposite approach or the right one, for a right turn the left one, straight on left or right
     (Bench2Drive-220's pairs)."""
-    inside = np.flatnonzero(route.in_junction[k0:]) + k0
-    after = np.flatnonzero(~route.in_junction[inside[0] :]) + inside[0]
+    first = first_real_junction(m, route, k0)
+    after = np.flatnonzero(~route.in_junction[first:]) + first
     end = int(after[0]) if len(after) else len(route) - 1
-    turn = (route.heading[end] - route.heading[inside[0] - 1] + math.pi) % (2 * math.pi) - math.pi
+    turn = (route.heading[end] - route.heading[first - 1] + math.pi) % (2 * math.pi) - math.pi
     if turn > math.radians(30.0):
         options: tuple[str, ...] = ("opposite", "right")
     elif turn < -math.radians(30.0):

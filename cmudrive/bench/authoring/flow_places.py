@@ -26,6 +26,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from cmudrive.bench.scenarios.base import first_real_junction
 from cmudrive.bench.scenarios.placement import LanePoint, point_xy, walk
 from cmudrive.maps import RoadMap, Route
 from cmudrive.maps.coords import map_to_carla
@@ -51,14 +52,15 @@ def junction_links(m: RoadMap, junction: int, kind: int = LaneKind.DRIVING) -> n
 
 def first_junction(m: RoadMap, route: Route, k0: int) -> tuple[int, int, int] | None:
     """(junction, route index of the last point before it, first index after it) of CAV 0's first
-    junction past route index ``k0``; None without one."""
-    inside = np.flatnonzero(route.in_junction[k0:]) + k0
-    if len(inside) == 0 or inside[0] == 0:
+    junction past route index ``k0`` (road joins passed over, as the scenarios do:
+    ``first_real_junction``); None without one."""
+    first = first_real_junction(m, route, k0)
+    if first <= 0:
         return None
-    after = np.flatnonzero(~route.in_junction[inside[0] :]) + inside[0]
+    after = np.flatnonzero(~route.in_junction[first:]) + first
     if len(after) == 0:
         return None
-    return int(m.lane_junction[route.lane[inside[0]]]), int(inside[0]) - 1, int(after[0])
+    return int(m.lane_junction[route.lane[first]]), first - 1, int(after[0])
 
 
 def _xyz(m: RoadMap, p: LanePoint) -> dict[str, str]:

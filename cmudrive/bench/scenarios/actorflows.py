@@ -27,7 +27,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from cmudrive.bench.scenarios.base import EGO, RouteProgress, Scenario
+from cmudrive.bench.scenarios.base import EGO, RouteProgress, Scenario, first_real_junction
 from cmudrive.bench.scenarios.flows import VehicleFlow
 from cmudrive.bench.scenarios.junctions import exit_distance
 from cmudrive.bench.scenarios.params import Param
@@ -106,7 +106,7 @@ class ActorFlowScenario(Scenario):
                     raise self.error(f"no lane path from start_actor_flow to end_actor_flow: {exc}") from None
         route = self.ctx.routes[EGO]
         # [m] along CAV 0's route: where it has left the first junction past T
-        self.goal = exit_distance(route.xy, route.in_junction, route.distance, self.trigger_index)
+        self.goal = exit_distance(self.map, route, self.trigger_index)
         if not self.end_at_sink and not np.isfinite(self.goal):
             raise self.error("no place for the scenario: CAV 0's route meets no junction after T")
 
@@ -156,9 +156,9 @@ class ActorFlowScenario(Scenario):
                 background.opposite_traffic(False)
             if self.clear_junction:
                 route = self.ctx.routes[0]
-                inside = np.flatnonzero(route.in_junction[self.trigger_index :]) + self.trigger_index
-                if len(inside):
-                    background.clear_junction(int(m.lane_junction[route.lane[inside[0]]]))
+                first = first_real_junction(m, route, self.trigger_index)
+                if first >= 0:
+                    background.clear_junction(int(m.lane_junction[route.lane[first]]))
 
     def on_update(self, snap: Snapshot, progress: RouteProgress) -> bool:
         for flow in self.flows:

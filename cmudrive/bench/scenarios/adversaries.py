@@ -114,7 +114,7 @@ class OppositeVehicle(Scenario):
         self.fired_at = math.nan
         self.gone = False
         r = self.ctx.routes[EGO]  # [m] along CAV 0's route: out of its junction
-        self.goal = exit_distance(r.xy, r.in_junction, r.distance, self.trigger_index)
+        self.goal = exit_distance(self.map, r, self.trigger_index)
 
     def plan(self) -> list[PlanItem]:
         start = point(EV_TYPE, self.path_xy[0], float(np.arctan2(*(self.path_xy[1] - self.path_xy[0])[::-1])))

@@ -105,6 +105,17 @@ class RouteProgress:
             self.index[i] = k + int(np.argmin(np.linalg.norm(window - self.xy[i], axis=1)))
 
 
+def first_real_junction(m: RoadMap, route: Route, k: int) -> int:
+    """Index of the first point of ``route`` at or after ``k`` inside a junction that is not a mere road
+    join (``RoadMap.junction_is_join``), or -1."""
+    inside = np.flatnonzero(route.in_junction[k:]) + k
+    if len(inside) == 0:
+        return -1
+    joins = m.junction_is_join[m.lane_junction[route.lane[inside]]]
+    real = inside[~joins & (inside > 0)]
+    return int(real[0]) if len(real) else -1
+
+
 class Phase(IntEnum):
     PENDING = 0
     INSTANTIATED = 1
@@ -232,15 +243,15 @@ class Scenario:
 
     def junction_exit(self) -> tuple[int, int, float]:
         """CAV 0's route indices of the last point before and the first point after its first junction past
-        T, and the turn angle [rad] (+ left) between them."""
-        route = self.ctx.routes[0]
+        T, and the turn angle [rad] (+ left) between them. Nodes that only join roads end to end
+        (``RoadMap.junction_is_join``: no junction in CARLA's map) are passed over."""
+        route, m = self.ctx.routes[0], self.map
         k0 = self.trigger_index
-        inside = np.flatnonzero(route.in_junction[k0:]) + k0
-        if len(inside) == 0 or route.distance[inside[0]] - route.distance[k0] > JUNCTION_SEARCH:
+        first = first_real_junction(m, route, k0)
+        if first < 0 or route.distance[first] - route.distance[k0] > JUNCTION_SEARCH:
             raise self.error(
                 f"no place for the scenario: CAV 0's route has no junction within {JUNCTION_SEARCH:g} m of T"
             )
-        first = int(inside[0])
         after = np.flatnonzero(~route.in_junction[first:]) + first
         if len(after) == 0:
             raise self.error("no place for the scenario: CAV 0's route ends inside the junction")

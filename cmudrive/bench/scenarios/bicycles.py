@@ -84,7 +84,7 @@ class CrossingBicycleFlow(Scenario):
             )
         self.signalized = bool(np.any((m.link_from == self.ego_lane) & (m.link_tls >= 0)))
         r = self.ctx.routes[EGO]  # [m] along CAV 0's route: out of its junction
-        self.goal = exit_distance(r.xy, r.in_junction, r.distance, self.trigger_index)
+        self.goal = exit_distance(self.map, r, self.trigger_index)
 
     def _exit_lane(self, source: LanePoint) -> int:
         """The bike lane past the first junction downstream of ``source`` (its straight exit if any)."""

@@ -30,7 +30,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from cmudrive.bench.scenarios.base import EGO, RouteProgress, Scenario
+from cmudrive.bench.scenarios.base import EGO, RouteProgress, Scenario, first_real_junction
 from cmudrive.bench.scenarios.behaviours import PathMotion, lane_change_path, lane_path, time_to_arrival
 from cmudrive.bench.scenarios.params import DIRECTION, KMH, Param
 from cmudrive.bench.scenarios.placement import LanePoint, heading, neighbour, point_xy, side_sign, walk
@@ -213,12 +213,12 @@ class HighwayCutIn(Scenario):
             )
         self.start = LanePoint(int(proj.lane[0]), float(proj.s[0]))
         route = self.ctx.routes[0]
-        inside = np.flatnonzero(route.in_junction[self.trigger_index :]) + self.trigger_index
-        if len(inside) == 0:
+        first = first_real_junction(m, route, self.trigger_index)
+        if first < 0:
             raise self.error(
                 "no place for the scenario: CAV 0's route meets no junction (the on-ramp) after T"
             )
-        after = np.flatnonzero(~route.in_junction[inside[0] :]) + inside[0]
+        after = np.flatnonzero(~route.in_junction[first:]) + first
         self.ego_exit = float(route.distance[after[0] if len(after) else len(route) - 1])
         to_exit = self._distance_to_exit(self.start)
         self.sync = to_exit + self.SYNC_PAST_EXIT

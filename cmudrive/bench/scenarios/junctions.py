@@ -33,11 +33,11 @@ from typing import ClassVar
 
 import numpy as np
 
-from cmudrive.bench.scenarios.base import EGO, RouteProgress, Scenario
+from cmudrive.bench.scenarios.base import EGO, RouteProgress, Scenario, first_real_junction
 from cmudrive.bench.scenarios.behaviours import within
 from cmudrive.bench.scenarios.placement import heading, point_xy, walk
 from cmudrive.bench.scenarios.plan import PlanItem, point
-from cmudrive.maps import RoadMap
+from cmudrive.maps import RoadMap, Route
 from cmudrive.sim.dynamics import Controls
 from cmudrive.sim.snapshot import Snapshot
 
@@ -61,13 +61,14 @@ def approach_lanes(m: RoadMap, lane: int) -> list[int]:
     return [lane, *(int(i) for i in same if i != lane)]
 
 
-def exit_distance(route_xy: np.ndarray, in_junction: np.ndarray, distance: np.ndarray, k0: int) -> float:
-    """[m] route distance of the first point after the first junction past index ``k0`` (inf: none)."""
-    inside = np.flatnonzero(in_junction[k0:]) + k0
-    if len(inside) == 0:
+def exit_distance(m: RoadMap, route: Route, k0: int) -> float:
+    """[m] route distance of the first point after the first junction past index ``k0`` that is not a
+    mere road join (``first_real_junction``; inf: none)."""
+    first = first_real_junction(m, route, k0)
+    if first < 0:
         return math.inf
-    after = np.flatnonzero(~in_junction[inside[0] :]) + inside[0]
-    return float(distance[after[0]]) if len(after) else math.inf
+    after = np.flatnonzero(~route.in_junction[first:]) + first
+    return float(route.distance[after[0]]) if len(after) else math.inf
 
 
 class RouteRule(Scenario):
@@ -83,7 +84,7 @@ class RouteRule(Scenario):
             self.junction_exit()  # refuses a route without a junction after T
         r, k0 = self.ctx.routes[EGO], self.trigger_index
         if self.counter is None:  # [m] along CAV 0's route
-            self.goal = exit_distance(r.xy, r.in_junction, r.distance, k0) + AFTER_JUNCTION
+            self.goal = exit_distance(self.map, r, k0) + AFTER_JUNCTION
         else:
             self.goal = float(r.distance[k0]) + self.counter
 

@@ -106,7 +106,7 @@ class JunctionTurnFlow(Scenario):
         except RouteError as exc:
             raise self.error(f"no place for the flow: {exc}") from None
         r = self.ctx.routes[EGO]  # [m] along CAV 0's route: 10 m past its junction
-        self.goal = exit_distance(r.xy, r.in_junction, r.distance, self.trigger_index) + AFTER_JUNCTION
+        self.goal = exit_distance(self.map, r, self.trigger_index) + AFTER_JUNCTION
         if self.signalized and not np.any((m.link_from == self.ego_lane) & (m.link_tls >= 0)):
             raise self.error("no place for the scenario: CAV 0's junction has no traffic light")
 
