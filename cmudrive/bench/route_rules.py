@@ -104,6 +104,7 @@ def rule_violations(routes: list[Route], placed: Sequence[Scenario]) -> list[Rul
 
 def _not_a_merge(sc: HighwayCutIn, ego: Route) -> str | None:
     """Why HighwayCutIn's car does not merge from a ramp into CAV 0's lane in front of it, or None."""
+    from cmudrive.bench.scenarios.base import first_real_junction
     from cmudrive.bench.scenarios.placement import neighbour, point_xy
 
     m = sc.map
@@ -116,8 +117,6 @@ def _not_a_merge(sc: HighwayCutIn, ego: Route) -> str | None:
     car_links = np.flatnonzero(m.link_from == lane)
     if bool(np.any(m.link_tls[car_links] >= 0)):
         return "the car reaches CAV 0's road through a signalised junction, not an on-ramp"
-    from cmudrive.bench.scenarios.base import first_real_junction
-
     first = first_real_junction(m, ego, sc.trigger_index)
     if first > 0:
         before, via = int(ego.lane[first - 1]), int(ego.lane[first])
