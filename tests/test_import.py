@@ -287,6 +287,33 @@ def test_id_map_links_opendrive_roads_and_lanes(town: Callable[[str], Imported])
 @needs_netconvert
 @needs_towns
 @pytest.mark.parametrize("name", TOWNS)
+def test_no_car_lane_runs_past_the_road_it_joins(town: Callable[[str], Imported], name: str) -> None:
+    """Where a car lane hands over to a junction's internal lane, that lane leads on, not back: netconvert
+    ran Town03's road 66 17.5 m past its join and back (cmudrive.maps.lane_ends)."""
+    imported = town(name)
+    backward = []
+    for edge in imported.net.getEdges(withInternal=False):
+        for lane in edge.getLanes():
+            shape = np.array(lane.getShape())[:, :2]
+            if not lane.allows("passenger") or len(shape) < 3:  # a 2-point lane cannot be cut back
+                continue
+            end = math.atan2(*(shape[-1] - shape[-2])[::-1])
+            for conn in lane.getOutgoing():
+                via = conn.getViaLaneID()
+                if not via:
+                    continue
+                link = np.array(imported.net.getLane(via).getShape())[:, :2]
+                start = math.atan2(*(link[1] - link[0])[::-1])
+                if abs((start - end + math.pi) % (2 * math.pi) - math.pi) > math.radians(100):
+                    backward.append(f"{lane.getID()} -> {via}")
+    assert backward == []
+    if name == "Town03":
+        assert any(r.startswith("-66_5 ") for r in imported.report.lane_end_repairs)
+
+
+@needs_netconvert
+@needs_towns
+@pytest.mark.parametrize("name", TOWNS)
 def test_route_across_the_town(town: Callable[[str], Imported], name: str) -> None:
     imported = town(name)
     edges = imported.driving_edges()

@@ -16,6 +16,8 @@ import (e.g. a CARLA town) takes two netconvert passes:
    OpenDRIVE junction id, and dead-end stubs (degenerate roads of a few micrometres that netconvert turns
    into a 0.1 m edge ending nowhere, :class:`~cmudrive.maps.opendrive.DeadEndStub`) are removed with
    their connections sent on to the road that continues.
+3. Vehicle lanes whose shape netconvert ends past the road that follows, with the join's internal lane
+   leading back, are cut back in the written network (:mod:`cmudrive.maps.lane_ends`).
 
 An OpenStreetMap import is one pass (UTM projection, OSM signals, sidewalks and crossings). Frames are
 described in :mod:`cmudrive.maps.coords`, options and limitations in ``docs/opendrive_import.md``.
@@ -36,6 +38,7 @@ from pathlib import Path
 from typing import Literal
 
 from cmudrive.maps.errors import MapError
+from cmudrive.maps.lane_ends import repair_lane_ends
 from cmudrive.maps.loader import file_sha256
 from cmudrive.maps.netconvert import find_netconvert, run_netconvert, write_with_fixed_header
 from cmudrive.maps.opendrive import (
@@ -112,6 +115,7 @@ class ImportReport:
     source_controllers: int  # signal controllers (<controller>) in the .xodr (0 for OSM)
     seconds: float  # [s] wall time of the whole import
     warnings: tuple[str, ...] = ()  # netconvert warnings as "count x message", most frequent kind first
+    lane_end_repairs: tuple[str, ...] = ()  # vehicle lanes cut back to the next road (lane_ends)
 
 
 @dataclass(frozen=True)
@@ -176,8 +180,12 @@ def import_map(src: Path | str, dst: Path | str, options: ImportOptions | None =
     work = Path(tempfile.mkdtemp(prefix=f".{dst.name}.", dir=dst.parent))
     try:
         result = work / "result.net.xml"
+        repaired: tuple[str, ...] = ()
         if xodr is not None:
             tls_source, logs = _import_opendrive(src, result, xodr, options, work)
+            text, repairs = repair_lane_ends(result.read_text(encoding="utf-8"))
+            result.write_text(text, encoding="utf-8")
+            repaired = tuple(f"{r.lane} (-{r.dropped} points, via {r.internal})" for r in repairs)
         else:
             tls_source, logs = _import_osm(src, result, options, work)
         net = read_net(result)
@@ -218,6 +226,7 @@ def import_map(src: Path | str, dst: Path | str, options: ImportOptions | None =
         source_controllers=xodr.controllers if xodr else 0,
         seconds=time.perf_counter() - start,
         warnings=warnings,
+        lane_end_repairs=repaired,
     )
 
 
