@@ -13,7 +13,8 @@ from cmudrive.maps import load_map
 from cmudrive.maps.lane_ends import repair_lane_ends
 
 # a road heading east (x 0 -> 20) whose driving lane's last point netconvert put 12 m past the join at x 20;
-# the join's internal lane leads back to the next road, which starts at x 21
+# the join's internal lane leads back to the next road, which starts at x 21; at its end a turnaround
+# (dir t) that turns back by design
 NET = """<net>
     <edge id=":J_0" function="internal">
         <lane id=":J_0_0" index="0" speed="10.00" length="11.00" shape="32.00,0.00 21.00,0.00"/>
@@ -29,10 +30,17 @@ NET = """<net>
         <lane id="s_0" index="0" disallow="all" speed="1.39" length="20.00" shape="0.00,5.00 32.00,5.00"/>
     </edge>
     <edge id="b" from="J" to="B">
-        <lane id="b_0" index="0" speed="10.00" length="30.00" shape="21.00,0.00 51.00,0.00"/>
+        <lane id="b_0" index="0" speed="10.00" length="30.00" shape="21.00,0.00 40.00,0.00 51.00,0.00"/>
+    </edge>
+    <edge id=":K_0" function="internal">
+        <lane id=":K_0_0" index="0" speed="5.00" length="6.00" shape="51.00,0.00 49.00,3.00"/>
+    </edge>
+    <edge id="c" from="B" to="A">
+        <lane id="c_0" index="0" speed="10.00" length="30.00" shape="49.00,3.00 21.00,3.00"/>
     </edge>
     <connection from="a" to="b" fromLane="0" toLane="0" via=":J_0_0" dir="s" state="M"/>
     <connection from="s" to="b" fromLane="0" toLane="0" via=":J_1_0" dir="s" state="M"/>
+    <connection from="b" to="c" fromLane="0" toLane="0" via=":K_0_0" dir="t" state="M"/>
 </net>
 """
 
@@ -51,8 +59,9 @@ def test_the_overshooting_end_is_cut_back_and_the_join_goes_forward() -> None:
     assert _attr(text, ":J_0_0", "length") == "2.00"
     # SUMO's length keeps its ratio to the shape's (20 m for 32 m of shape before, 19 m of shape now)
     assert float(_attr(text, "a_0", "length")) == round(20.0 * 19.0 / 32.0, 2)
-    # a lane no car may use (a shoulder) is left as it is, and so is every other line of the file
+    # a lane no car may use (a shoulder) and a turnaround are left as they are, and so is every other line
     assert _attr(text, "s_0", "shape") == "0.00,5.00 32.00,5.00"
+    assert _attr(text, "b_0", "shape") == "21.00,0.00 40.00,0.00 51.00,0.00"
     changed = [n for n, (a, b) in enumerate(zip(NET.splitlines(), text.splitlines(), strict=True)) if a != b]
     assert changed == [2, 8, 9]  # the internal lane's line, the lane's length and shape lines
 

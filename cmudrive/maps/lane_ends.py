@@ -12,14 +12,14 @@ Town07. SUMO's own remedy, a custom lane shape in an edge patch, does not help: 
 lane end when it re-reads the network. So the importer repairs the network it wrote
 (:func:`repair_lane_ends`), the same for SUMO's traffic and for our layer.
 
-The rule, for every connection from a normal vehicle lane L through an internal lane I whose first
-segment turns more than ``REVERSAL`` from L's last one: drop L's last points while the end of I (the
-start of the next lane) lies behind L's end, keeping at least two points; I becomes the straight
-segment from L's new end to the end of I. Only the ``shape`` and ``length`` attributes of L and I
-change (L's SUMO length keeps its ratio to its shape's length: the piece cut off was never road; I's
-is its shape's); nothing else in the file moves, and a network without such a lane comes back
-unchanged. A lane whose two points both lie past the next road (Town01's 0.9 m lane ``11_2``) cannot
-lose a point and is left as it is (a route through it goes back 1 m).
+The rule, for every connection from a normal vehicle lane L through an internal lane I whose first segment
+turns more than ``REVERSAL`` from L's last one (not a turnaround): drop L's last points while the end of I
+(the start of the next lane) lies behind L's end, keeping at least two points; I becomes the straight
+segment from L's new end to the end of I. Only the ``shape`` and ``length`` attributes of L and I change
+(L's SUMO length keeps its ratio to its shape's length: the piece cut off was never road; I's is its
+shape's); nothing else in the file moves, and a network without such a lane comes back unchanged. A lane
+whose two points both lie past the next road (Town01's 0.9 m lane ``11_2``) cannot lose a point and is
+left as it is (a route through it goes back 1 m).
 """
 
 from __future__ import annotations
@@ -29,6 +29,8 @@ import math
 import re
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
+
+from cmudrive.maps.errors import MapError
 
 REVERSAL = math.radians(100.0)  # turn between a lane's last segment and its internal lane's first
 
@@ -73,11 +75,11 @@ def _format(points: list[Point]) -> str:
     return " ".join(",".join(f"{v:.2f}" for v in p) for p in points)
 
 
-def find_lane_end_repairs(
+def _find_repairs(
     root: ET.Element,
 ) -> tuple[list[LaneEndRepair], dict[str, list[Point]]]:
     """The repairs :func:`repair_lane_ends` makes to the network ``root``, and every changed lane's new
-    shape by lane id."""
+    shape by lane id. Turnarounds (``dir`` t/T) turn back by design and are never touched."""
     lanes: dict[str, ET.Element] = {}
     internal: set[str] = set()
     for edge in root.iterfind("edge"):
@@ -92,6 +94,8 @@ def find_lane_end_repairs(
         via = conn.get("via")
         lane_id = f"{conn.get('from')}_{conn.get('fromLane')}"
         if not via or via not in internal or lane_id in internal or lane_id not in lanes:
+            continue
+        if conn.get("dir") in ("t", "T"):
             continue
         if not _allows_cars(lanes[lane_id]):
             continue
@@ -120,7 +124,7 @@ def find_lane_end_repairs(
 def repair_lane_ends(text: str) -> tuple[str, list[LaneEndRepair]]:
     """The SUMO network ``text`` with the lane ends of this module's rule repaired, and the repairs."""
     root = ET.fromstring(text)
-    repairs, changed = find_lane_end_repairs(root)
+    repairs, changed = _find_repairs(root)
     old = {
         lane_id: _shape(lane.get("shape", ""))
         for lane in root.iter("lane")
@@ -129,8 +133,8 @@ def repair_lane_ends(text: str) -> tuple[str, list[LaneEndRepair]]:
     for lane_id, points in changed.items():
         pattern = re.compile(r'(<lane id="' + re.escape(lane_id) + r'"[^>]*? length="([^"]*)"[^>]*?)>', re.S)
         match = pattern.search(text)
-        if match is None:  # the parser found it: the file's own text must have it
-            raise ValueError(f"lane {lane_id!r} not found in the network text")
+        if match is None:  # the parser found it, so the text has it unless written unusually
+            raise MapError(f"lane {lane_id!r} to repair not found as <lane id=... length=...> in the network")
         element = match.group(1)
         shape_length = _length(points)
         if lane_id.startswith(":"):
