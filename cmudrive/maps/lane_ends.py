@@ -31,6 +31,7 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 
 from cmudrive.maps.errors import MapError
+from cmudrive.maps.opendrive import permits
 
 REVERSAL = math.radians(100.0)  # turn between a lane's last segment and its internal lane's first
 
@@ -61,10 +62,8 @@ def _turn(h0: float, h1: float) -> float:
 
 
 def _allows_cars(lane: ET.Element) -> bool:
-    if "allow" in lane.attrib:
-        return "passenger" in lane.attrib["allow"].split()
-    disallowed = lane.get("disallow", "").split()
-    return "passenger" not in disallowed and "all" not in disallowed
+    allow = frozenset(lane.attrib["allow"].split()) if "allow" in lane.attrib else None
+    return permits(allow, frozenset(lane.get("disallow", "").split()), "passenger")
 
 
 def _length(points: list[Point]) -> float:

@@ -120,9 +120,15 @@ class NetLane:
     orig: tuple[str, ...]  # origId tokens, "road_lane" for OpenDRIVE imports
 
     def allows(self, vclass: str) -> bool:
-        if "all" in self.deny or vclass in self.deny:
-            return False
-        return self.allow is None or "all" in self.allow or vclass in self.allow
+        return permits(self.allow, self.deny, vclass)
+
+
+def permits(allow: frozenset[str] | None, deny: frozenset[str], vclass: str) -> bool:
+    """SUMO's lane permissions: ``vclass`` may use a lane with these "allow" (None: attribute absent) and
+    "disallow" classes."""
+    if "all" in deny or vclass in deny:
+        return False
+    return allow is None or "all" in allow or vclass in allow
 
 
 @dataclass(frozen=True)
