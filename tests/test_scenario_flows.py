@@ -6,6 +6,7 @@ reached the sink (or left the junction)."""
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 from pathlib import Path
 
@@ -15,10 +16,11 @@ import pytest
 from cmudrive.bench import RouteSpec
 from cmudrive.bench.scenarios.flows import VehicleFlow
 from cmudrive.bench.scenarios.placement import LanePoint
-from cmudrive.maps import LanePos, RoadMap, RoutePlanner, load_map
+from cmudrive.maps import LanePos, RoadMap, Route, RoutePlanner, load_map
 from cmudrive.maps.coords import map_to_carla
 from cmudrive.maps.model import LaneKind
 from cmudrive.sim import Controls, World, WorldConfig
+from cmudrive.sim.snapshot import Snapshot
 from tests.scenario_helpers import cav_track, path_cav, run, scenario, track, trigger
 
 # town, ramp lane (CAV 0), s on it (start, trigger), main lane (flow source) and s, exit lane (sink) and s
@@ -318,3 +320,89 @@ def test_a_flow_car_placed_before_a_stop_sign_departs_no_faster_than_it_could_st
     assert not np.isnan(v[0])  # inserted, not discarded
     assert v[0] < 8.0  # [m/s] it could stop within the 10 m to the line
     assert np.nanmax(v) == pytest.approx(12.0, abs=0.1)  # then the flow speed, through the junction
+
+
+def _standing_in_junction(mini: RoadMap, flow_xy: np.ndarray, clear: float) -> Route:
+    """The mini network's S -> N route through junction C, from its first point where the CAV's box
+    (4.89 x 2.1 m) comes within ``clear`` [m] of the path ``flow_xy`` (n, 2)."""
+    route = RoutePlanner(mini).plan_lanes(LanePos(mini.lane("SC_0"), 150.0), LanePos(mini.lane("CN_1"), 50.0))
+    for k in range(len(route)):
+        rel = flow_xy - route.xy[k]
+        c, s = np.cos(route.heading[k]), np.sin(route.heading[k])
+        out_u = np.maximum(np.abs(rel[:, 0] * c + rel[:, 1] * s) - 4.89 / 2, 0.0)
+        out_w = np.maximum(np.abs(-rel[:, 0] * s + rel[:, 1] * c) - 2.1 / 2, 0.0)
+        if np.hypot(out_u, out_w).min() < clear:
+            break
+    fields = ("xy", "heading", "lane", "s", "speed_limit", "in_junction", "option")
+    cut = {f: getattr(route, f)[k:] for f in fields}
+    return dataclasses.replace(route, **cut, distance=route.distance[k:] - route.distance[k])
+
+
+def _follow_past_standing_cav(mini_net: Path, mini: RoadMap, clear: float) -> tuple[np.ndarray, list, float]:
+    """A 12 m/s ActorFlow W -> E straight through junction C that has collided (it follows cars), and a
+    CAV standing on its S -> N lane inside the junction ``clear`` [m] from the flow's path; the CAV
+    leaves after 17.5 s. Returns the first car's (x, y, speed) per tick (NaN when absent), the contacts
+    and the smallest gap [m] between the two boxes while both stood."""
+    source, sink = LanePoint(mini.lane("WC_1"), 100.0), LanePoint(mini.lane("CE_1"), 60.0)
+    track_: list[tuple[float, float, float]] = []
+    hits: list[tuple[int, str, str]] = []
+    gap = np.inf
+    with World(WorldConfig(town=mini_net, seed=1), road_map=mini) as world:
+        rng = np.random.default_rng(0)
+        flow = VehicleFlow("F", world, mini, source, sink, (500.0, 500.0), 12.0, rng, True)
+        world.add_cav(_standing_in_junction(mini, flow.path.xy, clear), speed=0.0)
+        flow.collided = True  # as after a collision of one of its cars: every car follows traffic
+        stand = Controls(np.zeros(1), np.zeros(1), np.ones(1))
+        snap = world.tick(stand)
+        for k in range(500):  # 25 s
+            flow.update(snap)
+            if k == 350:
+                world.remove_cav(0)
+                stand = Controls(np.zeros(0), np.zeros(0), np.zeros(0))
+            snap = world.tick(stand)
+            ev = world.collisions
+            hits += [(k, str(a), str(b)) for a, b in zip(ev.id_a, ev.id_b, strict=True)]
+            r, c = np.flatnonzero(snap.ids == "F:0"), np.flatnonzero(snap.ids == "cav0")
+            track_.append((snap.x[r[0]], snap.y[r[0]], snap.speed[r[0]]) if len(r) else (np.nan,) * 3)
+            if len(r) and len(c) and snap.speed[r[0]] < 0.05:
+                gap = min(gap, _box_gap(_box(snap, r[0]), _box(snap, c[0])))
+    return np.array(track_), hits, gap
+
+
+def _box(snap: Snapshot, i: int) -> np.ndarray:
+    """Row ``i``'s box as (x, y, cos yaw, sin yaw, half length, half width)."""
+    c, s = np.cos(snap.yaw[i]), np.sin(snap.yaw[i])
+    return np.array([snap.x[i], snap.y[i], c, s, 0.5 * snap.length[i], 0.5 * snap.width[i]])
+
+
+def _box_gap(a: np.ndarray, b: np.ndarray) -> float:
+    """[m] the distance between two boxes that do not overlap (``_box`` rows): the nearest corner of
+    either to the other box."""
+
+    def corners(t: np.ndarray) -> np.ndarray:
+        sign = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]])
+        lon, lat = sign[:, 0] * t[4], sign[:, 1] * t[5]
+        return np.stack([t[0] + lon * t[2] - lat * t[3], t[1] + lon * t[3] + lat * t[2]], axis=1)
+
+    def point_box(p: np.ndarray, t: np.ndarray) -> np.ndarray:
+        rel = p - t[:2]
+        u = np.maximum(np.abs(rel[:, 0] * t[2] + rel[:, 1] * t[3]) - t[4], 0.0)
+        w = np.maximum(np.abs(-rel[:, 0] * t[3] + rel[:, 1] * t[2]) - t[5], 0.0)
+        return np.hypot(u, w)
+
+    return float(min(point_box(corners(a), b).min(), point_box(corners(b), a).min()))
+
+
+def test_a_following_flow_car_stands_short_of_a_cav_reaching_into_its_path(
+    mini_net: Path, mini: RoadMap
+) -> None:
+    """A 12 m/s ActorFlow that has collided (it follows cars) crosses junction C west to east; a CAV stands
+    inside the junction on its south-north lane with its nose 0.2 m into the flow car's swept path. The car
+    stands 3.5-5 m short of it (``YIELD_STANDOFF``: 4 m to the first path point it would touch; SUMO alone
+    stopped it 2.9 m short, at the conflict point of the two internal lanes, which on Town03 lay beside the
+    CAV's nose), never touches it, and drives on at the flow speed once the CAV has gone."""
+    xyv, hits, gap = _follow_past_standing_cav(mini_net, mini, clear=0.925 - 0.2)
+    assert not hits
+    assert 3.5 < gap < 5.0  # [m] box to box, while both stood
+    assert np.nanmin(xyv[:350, 2]) < 0.05 and np.nanmax(xyv[:350, 0]) < 200.0  # stood, west of the CAV
+    assert np.nanmax(xyv[350:, 2]) == pytest.approx(12.0, abs=0.1)  # the flow speed after it left

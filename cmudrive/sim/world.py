@@ -544,6 +544,10 @@ class World:
         return Snapshot.from_rows(0, 0.0, np.zeros(0, dtype=str), x=np.zeros(0), y=np.zeros(0))
 
     # ------------------------------------------------------------------ collision aftermath
+    def is_held(self, actor_id: str) -> bool:
+        """``actor_id`` is a SUMO actor waiting out its ``COLLISION_HOLD`` after a collision."""
+        return actor_id in self._held
+
     def _hold_sumo_actors_after_collisions(self, snap: Snapshot) -> None:
         import libsumo
 

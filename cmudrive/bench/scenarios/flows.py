@@ -12,7 +12,18 @@ Two behaviours (``imposed``):
   bit off): it does not brake for a CAV that forces its way in or stands in its lane, it hits it. After
   the first collision of one of the flow's cars (``World.collisions``, with anything), every car of the
   flow, present and future, falls back to SUMO's car-following, as upstream's fall back to normal
-  driving after their first collision.
+  driving after their first collision. Upstream's normal driving is CARLA's BasicAgent, which brakes for
+  any vehicle inside the polygon of its route ahead. SUMO's car-following sees a CAV only through its
+  copy on the nearest lane: a CAV whose nose reaches into the flow's lane from a junction's internal lane
+  is a foe SUMO waits for at the conflict point of the two internal lanes, which can lie beside or past
+  the CAV's nose, and the car drove on into the CAV (SignalizedJunctionLeftTurn_1: 0.57 m deep, not
+  charged as the CAV stood) or stopped beside it, in its way (SignalizedJunctionLeftTurnEnterFlow_3,
+  SignalizedJunctionRightTurn_2: CAVs and flow cars waiting for each other to the tick cap). So a
+  following car also brakes, geometrically, to stand ``YIELD_STANDOFF`` short of the first actor
+  (vehicle or walker) that reaches into its swept path ahead (within half its width + ``YIELD_CLEARANCE``)
+  and stands or crosses it (a vehicle driving along the path is SUMO's leader to follow), and drives on
+  at the flow speed once none does (:meth:`VehicleFlow._yield`); SUMO's own stops (its lane leaders, its
+  junction foes) stay, so the car stops at the earlier of the two.
 * ``OppositeFlow`` (not imposed): SUMO's own car-following, lights and right of way, capped at the flow
   speed, no lane changes: the oncoming traffic of the *TwoWays scenarios.
 """
@@ -25,12 +36,18 @@ from cmudrive.bench.scenarios.placement import LanePoint, point_xy
 from cmudrive.maps import RoadMap, Route
 from cmudrive.maps.routing import LanePos, RoutePlanner
 from cmudrive.sim.actor_types import ACTOR_TYPES
-from cmudrive.sim.snapshot import Role, Snapshot
+from cmudrive.sim.snapshot import ActorKind, Role, Snapshot
 from cmudrive.sim.world import World
 
 SINK_RADIUS = 2.0  # [m] a car this close to the sink is removed
 FLOW_TYPE = "car"
 IMPOSED_SPEED_FACTOR = 3.0  # an ActorFlow car may drive this many times a lane's limit (its speed is imposed)
+YIELD_STANDOFF = 4.0  # [m] a following flow car stands this far short of an actor across its path
+YIELD_CLEARANCE = 0.0  # [m] past the car's half width: an actor this close to its path is in it (BasicAgent)
+YIELD_REACTION = 1.0  # [s] of driving looked ahead beyond the braking distance and the standoff
+YIELD_ALONG = 0.5  # [rad] an actor moving within this of the path's heading is followed, not yielded to
+YIELD_STANDING = 1.0  # [m/s] an actor slower than this is yielded to whatever its heading
+YIELD_STEP = 0.25  # [m] spacing of the swept path's sample points
 
 
 def flow_path(
@@ -75,6 +92,7 @@ class VehicleFlow:
         self.cars: list[str] = []
         self.born: dict[str, int] = {}  # car -> world step count when it was added
         self.collided = False  # one of its cars hit something: the flow follows cars from then on
+        self._yielding: dict[str, float] = {}  # car -> speed [m/s] set to stand short of an actor
         self.spawned = 0
         self.gap = self._draw()
 
@@ -116,6 +134,8 @@ class VehicleFlow:
             for car in self.cars:  # the speed stays as it is (the car that hit something is held)
                 if car in sumo.actors:
                     self._control(car, set_speed=False)
+        if self.imposed and self.collided:
+            self._yield(snap, rows)
         last = f"{self.name}:{self.spawned - 1}"
         if self.spawned and last in self.cars:
             try:
@@ -197,6 +217,67 @@ class VehicleFlow:
             return False
         k = int(link[0])
         return bool(m.link_tls[k] >= 0 or not str(m.link_state[k]).isupper())
+
+    def _yield(self, snap: Snapshot, rows: dict[str, int]) -> None:
+        """A following car (the flow has collided) that would reach an actor (vehicle or walker) standing
+        in or crossing its path brakes to stand ``YIELD_STANDOFF`` short of it (module docstring); the flow
+        speed comes back once none is ahead. A car the world holds after its own collision is left to the
+        world."""
+        import libsumo
+
+        for car in [c for c in self._yielding if c not in self.cars]:
+            del self._yielding[car]
+        kind = ACTOR_TYPES[self.type_name]
+        movers = np.flatnonzero(snap.valid & (snap.kind != ActorKind.PROP))  # walkers too (SUMO's crossings)
+        for car in self.cars:
+            r = rows.get(car)
+            if r is None or car not in self.world.sumo.actors or self.world.is_held(car):
+                continue
+            target = self.speed
+            room = self._room(snap, r, movers[movers != r], kind.width, kind.length, kind.decel)
+            if room is not None:
+                target = min(target, float(np.sqrt(2.0 * kind.decel * max(room, 0.0))))
+            before = self._yielding.get(car)
+            if target < self.speed:
+                if before is None or abs(before - target) > 0.05:
+                    libsumo.vehicle.setSpeed(car, target)
+                    self._yielding[car] = target
+            elif before is not None:
+                libsumo.vehicle.setSpeed(car, self.speed)
+                del self._yielding[car]
+
+    def _room(
+        self, snap: Snapshot, row: int, others: np.ndarray, width: float, length: float, decel: float
+    ) -> float | None:
+        """[m] the car at ``row`` may still drive before it stands ``YIELD_STANDOFF`` short of the first
+        point of its path ahead that lies within half its ``width`` + ``YIELD_CLEARANCE`` of the box of
+        one of the actors ``others`` (rows) that stands or does not move along the path there; None
+        when there is none within its braking distance, the standoff and ``YIELD_REACTION`` of driving."""
+        path = self.path
+        k = int(np.argmin((path.xy[:, 0] - snap.x[row]) ** 2 + (path.xy[:, 1] - snap.y[row]) ** 2))
+        front = float(path.distance[k]) + 0.5 * length
+        v = max(float(snap.speed[row]), 0.0)
+        look = YIELD_STANDOFF + v * v / (2.0 * decel) + v * YIELD_REACTION + 1.0
+        near = others[np.hypot(snap.x[others] - snap.x[row], snap.y[others] - snap.y[row]) < look + 10.0]
+        if not len(near) or front >= path.length:
+            return None
+        d = np.arange(front, min(front + look, path.length), YIELD_STEP)  # the swept path's samples
+        px, py = np.interp(d, path.distance, path.xy[:, 0]), np.interp(d, path.distance, path.xy[:, 1])
+        heading = np.unwrap(path.heading)
+        ph = np.interp(d, path.distance, heading)
+        dx, dy = px[:, None] - snap.x[near][None, :], py[:, None] - snap.y[near][None, :]
+        c, s = np.cos(snap.yaw[near])[None, :], np.sin(snap.yaw[near])[None, :]
+        out_u = np.maximum(np.abs(dx * c + dy * s) - 0.5 * snap.length[near][None, :], 0.0)
+        out_w = np.maximum(np.abs(-dx * s + dy * c) - 0.5 * snap.width[near][None, :], 0.0)
+        inside = np.hypot(out_u, out_w) < 0.5 * width + YIELD_CLEARANCE
+        along = np.abs(np.angle(np.exp(1j * (snap.yaw[near][None, :] - ph[:, None])))) < YIELD_ALONG
+        # (SUMO's car-following sees no walker on the road: a walker is yielded to whatever its heading)
+        vehicle = snap.kind[near][None, :] != ActorKind.PEDESTRIAN
+        followed = along & vehicle & (snap.speed[near][None, :] >= YIELD_STANDING)
+        hit = np.flatnonzero((inside & ~followed).any(axis=1))
+        if not len(hit):
+            return None
+        return float(d[hit[0]]) - front - YIELD_STANDOFF
 
     def _hit_something(self) -> bool:
         """One of this flow's cars is in a collision of the last tick."""
