@@ -222,62 +222,75 @@ class VehicleFlow:
         """A following car (the flow has collided) that would reach an actor (vehicle or walker) standing
         in or crossing its path brakes to stand ``YIELD_STANDOFF`` short of it (module docstring); the flow
         speed comes back once none is ahead. A car the world holds after its own collision is left to the
-        world."""
+        world. All cars of the flow in one batch (this runs every tick)."""
         import libsumo
 
         for car in [c for c in self._yielding if c not in self.cars]:
             del self._yielding[car]
+        cars = [
+            c for c in self.cars if c in rows and c in self.world.sumo.actors and not self.world.is_held(c)
+        ]
+        if not cars:
+            return
         kind = ACTOR_TYPES[self.type_name]
         movers = np.flatnonzero(snap.valid & (snap.kind != ActorKind.PROP))  # walkers too (SUMO's crossings)
-        for car in self.cars:
-            r = rows.get(car)
-            if r is None or car not in self.world.sumo.actors or self.world.is_held(car):
-                continue
-            target = self.speed
-            room = self._room(snap, r, movers[movers != r], kind.width, kind.length, kind.decel)
-            if room is not None:
-                target = min(target, float(np.sqrt(2.0 * kind.decel * max(room, 0.0))))
+        room = self._room(
+            snap, np.array([rows[c] for c in cars]), movers, kind.width, kind.length, kind.decel
+        )
+        target = np.minimum(self.speed, np.sqrt(2.0 * kind.decel * np.maximum(room, 0.0)))
+        for car, t in zip(cars, target.tolist(), strict=True):
             before = self._yielding.get(car)
-            if target < self.speed:
-                if before is None or abs(before - target) > 0.05:
-                    libsumo.vehicle.setSpeed(car, target)
-                    self._yielding[car] = target
+            if t < self.speed:
+                if before is None or abs(before - t) > 0.05:
+                    libsumo.vehicle.setSpeed(car, t)
+                    self._yielding[car] = t
             elif before is not None:
                 libsumo.vehicle.setSpeed(car, self.speed)
                 del self._yielding[car]
 
     def _room(
-        self, snap: Snapshot, row: int, others: np.ndarray, width: float, length: float, decel: float
-    ) -> float | None:
-        """[m] the car at ``row`` may still drive before it stands ``YIELD_STANDOFF`` short of the first
-        point of its path ahead that lies within half its ``width`` + ``YIELD_CLEARANCE`` of the box of
-        one of the actors ``others`` (rows) that stands or does not move along the path there; None
-        when there is none within its braking distance, the standoff and ``YIELD_REACTION`` of driving."""
+        self, snap: Snapshot, cars: np.ndarray, movers: np.ndarray, width: float, length: float, decel: float
+    ) -> np.ndarray:
+        """(C,) [m] each car (snapshot rows ``cars``) may still drive before it stands ``YIELD_STANDOFF``
+        short of the first point of its path ahead that lies within half its ``width`` +
+        ``YIELD_CLEARANCE`` of the box of one of the actors ``movers`` (rows; the car itself left out)
+        that stands or does not move along the path there; inf when there is none within its braking
+        distance, the standoff and ``YIELD_REACTION`` of driving."""
         path = self.path
-        k = int(np.argmin((path.xy[:, 0] - snap.x[row]) ** 2 + (path.xy[:, 1] - snap.y[row]) ** 2))
-        front = float(path.distance[k]) + 0.5 * length
-        v = max(float(snap.speed[row]), 0.0)
+        cx, cy = snap.x[cars], snap.y[cars]
+        k = np.argmin(
+            (path.xy[None, :, 0] - cx[:, None]) ** 2 + (path.xy[None, :, 1] - cy[:, None]) ** 2, axis=1
+        )
+        front = path.distance[k] + 0.5 * length  # (C,)
+        v = np.maximum(snap.speed[cars], 0.0)
         look = YIELD_STANDOFF + v * v / (2.0 * decel) + v * YIELD_REACTION + 1.0
-        near = others[np.hypot(snap.x[others] - snap.x[row], snap.y[others] - snap.y[row]) < look + 10.0]
-        if not len(near) or front >= path.length:
-            return None
-        d = np.arange(front, min(front + look, path.length), YIELD_STEP)  # the swept path's samples
+        room = np.full(len(cars), np.inf)
+        near = movers[
+            (np.hypot(snap.x[movers][None, :] - cx[:, None], snap.y[movers][None, :] - cy[:, None])
+             < (look + 10.0)[:, None]).any(axis=0)
+        ]  # fmt: skip
+        if not len(near):
+            return room
+        steps = np.arange(int(np.ceil(look.max() / YIELD_STEP)) + 1) * YIELD_STEP
+        d = front[:, None] + steps[None, :]  # (C, P) the swept paths' samples
+        valid = (steps[None, :] < look[:, None]) & (d < path.length)
         px, py = np.interp(d, path.distance, path.xy[:, 0]), np.interp(d, path.distance, path.xy[:, 1])
-        heading = np.unwrap(path.heading)
-        ph = np.interp(d, path.distance, heading)
-        dx, dy = px[:, None] - snap.x[near][None, :], py[:, None] - snap.y[near][None, :]
-        c, s = np.cos(snap.yaw[near])[None, :], np.sin(snap.yaw[near])[None, :]
-        out_u = np.maximum(np.abs(dx * c + dy * s) - 0.5 * snap.length[near][None, :], 0.0)
-        out_w = np.maximum(np.abs(-dx * s + dy * c) - 0.5 * snap.width[near][None, :], 0.0)
+        ph = np.interp(d, path.distance, np.unwrap(path.heading))
+        dx, dy = px[..., None] - snap.x[near], py[..., None] - snap.y[near]  # (C, P, A)
+        c, s = np.cos(snap.yaw[near]), np.sin(snap.yaw[near])
+        out_u = np.maximum(np.abs(dx * c + dy * s) - 0.5 * snap.length[near], 0.0)
+        out_w = np.maximum(np.abs(-dx * s + dy * c) - 0.5 * snap.width[near], 0.0)
         inside = np.hypot(out_u, out_w) < 0.5 * width + YIELD_CLEARANCE
-        along = np.abs(np.angle(np.exp(1j * (snap.yaw[near][None, :] - ph[:, None])))) < YIELD_ALONG
+        along = np.abs(np.angle(np.exp(1j * (snap.yaw[near] - ph[..., None])))) < YIELD_ALONG
         # (SUMO's car-following sees no walker on the road: a walker is yielded to whatever its heading)
-        vehicle = snap.kind[near][None, :] != ActorKind.PEDESTRIAN
-        followed = along & vehicle & (snap.speed[near][None, :] >= YIELD_STANDING)
-        hit = np.flatnonzero((inside & ~followed).any(axis=1))
-        if not len(hit):
-            return None
-        return float(d[hit[0]]) - front - YIELD_STANDOFF
+        vehicle = snap.kind[near] != ActorKind.PEDESTRIAN
+        followed = along & vehicle & (snap.speed[near] >= YIELD_STANDING)
+        itself = near[None, None, :] == cars[:, None, None]
+        hit = (inside & ~followed & ~itself).any(axis=2) & valid  # (C, P)
+        first = np.argmax(hit, axis=1)
+        has = hit[np.arange(len(cars)), first]
+        room[has] = d[has, first[has]] - front[has] - YIELD_STANDOFF
+        return room
 
     def _hit_something(self) -> bool:
         """One of this flow's cars is in a collision of the last tick."""
